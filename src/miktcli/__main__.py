@@ -1,0 +1,3 @@
+from miktcli.cli.app import main
+
+main()

@@ -1,0 +1,75 @@
+"""The `mikt` command: groups of nouns plus the hottest verbs at the top level."""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+from typer.core import TyperGroup
+from typer.exceptions import TyperException
+
+from miktcli import __version__
+from miktcli.cli import envs as envs_cmd
+from miktcli.cli.console import debug_enabled, err
+from miktcli.errors import MiktError
+
+
+class MiktGroup(TyperGroup):
+    """Turns known errors into one line on stderr and exit 1; tracebacks only with MIKT_DEBUG=1."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except MiktError as error:
+            if debug_enabled():
+                raise
+            err.print(f"[bold red]Error:[/] {error}", markup=True, highlight=False)
+            if error.hint:
+                err.print(f"Hint: {error.hint}")
+            raise typer.Exit(1) from None
+        except KeyboardInterrupt:
+            err.print("Interrupted.")
+            raise typer.Exit(130) from None
+        except (typer.Exit, typer.Abort, TyperException):
+            raise
+        except Exception as error:  # an unexpected bug: still one line unless debugging
+            if debug_enabled():
+                raise
+            err.print(f"[bold red]Error:[/] internal error: {type(error).__name__}: {error}")
+            err.print("Hint: run again with MIKT_DEBUG=1 for the traceback, and please report it.")
+            raise typer.Exit(1) from None
+
+
+app = typer.Typer(
+    cls=MiktGroup,
+    name="mikt",
+    help="Cross-morphology knowledge transfer for RL (MIKT, UAI 2020) on a fast CPU PPO engine.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+    add_completion=False,
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        print(f"mikt {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def root(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version."),
+) -> None:
+    """Train teachers, transfer them to new bodies, inspect and evaluate the results."""
+
+
+app.add_typer(envs_cmd.app, name="envs")
+
+
+def main() -> None:
+    try:
+        app()
+    except MiktError as error:  # raised while building the command tree, outside MiktGroup.invoke
+        err.print(f"Error: {error}")
+        sys.exit(1)

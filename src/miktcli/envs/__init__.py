@@ -1,0 +1,9 @@
+"""Environment specs, the centipede family, and the factory that builds either."""
+
+from miktcli.envs.factory import env_dims, make_env, model_facts, register_with_gymnasium
+from miktcli.envs.spec import CentipedeSpec, GymnasiumSpec, load_all_specs, load_spec, parse_spec, spec_names
+
+__all__ = [
+    "CentipedeSpec", "GymnasiumSpec", "env_dims", "load_all_specs", "load_spec", "make_env", "model_facts",
+    "parse_spec", "register_with_gymnasium", "spec_names",
+]

@@ -1,0 +1,131 @@
+"""The centipede environment: NerveNet's CentipedeEnv on the generated model, as a gymnasium Env."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from miktcli.envs.centipede_model import centipede_xml, torso_geom_ids
+
+FRAME_SKIP = 5
+HEIGHT_RANGE = (0.35, 1.15)  # every torso sphere's z must stay strictly inside
+MAX_LATERAL_GAP = 0.45  # |y| gap between consecutive torsos
+MAX_RESET_TRIES = 1000
+
+
+class CentipedeEnv(gym.Env):
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+
+    def __init__(
+        self,
+        legs: int,
+        crippled_legs: list[int] | tuple[int, ...] = (),
+        max_episode_steps: int = 1000,
+        render_mode: str | None = None,
+        width: int = 480,
+        height: int = 480,
+    ):
+        self.legs = legs
+        self.torsos = legs // 2
+        self.model = mujoco.MjModel.from_xml_string(centipede_xml(legs, crippled_legs))
+        self.data = mujoco.MjData(self.model)
+        self.dt = self.model.opt.timestep * FRAME_SKIP
+        self.max_episode_steps = max_episode_steps
+        self.render_mode = render_mode
+        self._width, self._height = width, height
+        self._renderer: mujoco.Renderer | None = None
+
+        self._torso_geoms = np.array(torso_geom_ids(legs))
+        self._front_body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, f"torso_{self.torsos - 1}")
+        self._updown_qpos = np.array(
+            [self.model.jnt_qposadr[self.model.joint(f"bodyupdown_{j}").id] for j in range(1, self.torsos)]
+        )
+        # The legs count in the cost scale even when some are crippled (NerveNet's choice).
+        self._ctrl_cost_weight = 0.5 * 4 / legs
+        self._contact_cost_weight = 0.5e-3 * 4 / legs
+
+        obs_dim = (self.model.nq - 2) + self.model.nv + 6 * self.model.nbody
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (obs_dim,), np.float64)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (self.model.nu,), np.float32)
+        self._elapsed = 0
+
+    # --- state checks -------------------------------------------------------------------------------
+    def is_healthy(self) -> bool:
+        d = self.data
+        if not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):
+            return False
+        xpos = d.geom_xpos[self._torso_geoms]
+        z = xpos[:, 2]
+        if not ((z > HEIGHT_RANGE[0]) & (z < HEIGHT_RANGE[1])).all():
+            return False
+        return bool((np.abs(np.diff(xpos[:, 1])) < MAX_LATERAL_GAP).all())
+
+    def contact_forces(self) -> np.ndarray:
+        return np.clip(self.data.cfrc_ext, -1.0, 1.0)
+
+    def _obs(self) -> np.ndarray:
+        d = self.data
+        return np.concatenate([d.qpos[2:], d.qvel, self.contact_forces().ravel()])
+
+    def front_x(self) -> float:
+        return float(self.data.xpos[self._front_body, 0])
+
+    # --- gymnasium API ------------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        m, d, rng = self.model, self.data, self.np_random
+        bound = 0.1 / (self.torsos - 1)
+        for _ in range(MAX_RESET_TRIES):
+            mujoco.mj_resetData(m, d)
+            qpos = m.qpos0 + rng.uniform(-0.1, 0.1, m.nq)
+            qpos[self._updown_qpos] = rng.uniform(-bound, bound, len(self._updown_qpos))
+            qpos[5] = rng.uniform(-bound, bound)  # the root quaternion's y component, as NerveNet does
+            d.qpos[:] = qpos
+            d.qvel[:] = 0.1 * rng.standard_normal(m.nv)
+            mujoco.mj_forward(m, d)
+            if self.is_healthy():
+                break
+        else:  # pragma: no cover - the sampler accepts within a few tries for every shipped morphology
+            raise RuntimeError("centipede reset found no healthy state")
+        mujoco.mj_rnePostConstraint(m, d)
+        self._elapsed = 0
+        return self._obs(), {}
+
+    def step(self, action):
+        m, d = self.model, self.data
+        action = np.asarray(action, dtype=np.float64)
+        x_before = self.front_x()
+        d.ctrl[:] = action  # ctrllimited: MuJoCo clamps to [-1, 1]
+        mujoco.mj_step(m, d, nstep=FRAME_SKIP)
+        mujoco.mj_rnePostConstraint(m, d)  # cfrc_ext is only filled by this call
+        forward = (self.front_x() - x_before) / self.dt
+        ctrl_cost = self._ctrl_cost_weight * float(np.square(action).sum())
+        contact = self.contact_forces()
+        contact_cost = self._contact_cost_weight * float(np.square(contact).sum())
+        reward = forward - ctrl_cost - contact_cost + 1.0
+        terminated = not self.is_healthy()
+        self._elapsed += 1
+        truncated = self._elapsed >= self.max_episode_steps and not terminated
+        obs = np.concatenate([d.qpos[2:], d.qvel, contact.ravel()])
+        info = {"reward_forward": forward, "reward_ctrl": -ctrl_cost, "reward_contact": -contact_cost}
+        return obs, reward, terminated, truncated, info
+
+    def render(self):
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.model, self._height, self._width)
+            self._camera = mujoco.MjvCamera()
+            self._camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+            self._camera.trackbodyid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "torso_0")
+            self._camera.distance = 2.5 + 0.5 * self.torsos
+            self._camera.elevation = -25
+            self._camera.azimuth = 120
+        self._renderer.update_scene(self.data, self._camera)
+        return self._renderer.render()
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

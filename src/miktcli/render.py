@@ -1,0 +1,48 @@
+"""Offscreen frames to PNG and MP4; works headless through Mesa (EGL or OSMesa), no display, no GPU."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from miktcli.errors import MiktError
+
+
+def render_frame(env) -> np.ndarray:
+    """One RGB frame from an env made with render_mode='rgb_array'."""
+    try:
+        frame = env.render()
+    except Exception as err:  # the GL backends raise a zoo of types; name the fix instead
+        raise MiktError(
+            f"offscreen rendering failed ({type(err).__name__}: {err})",
+            hint="set MUJOCO_GL=egl, or MUJOCO_GL=osmesa with PYOPENGL_PLATFORM=osmesa",
+        ) from err
+    if frame is None:
+        raise MiktError("the environment returned no frame; was it made with render_mode='rgb_array'?")
+    return np.asarray(frame)
+
+
+def save_png(frame: np.ndarray, path: Path) -> Path:
+    import imageio.v3 as iio
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".part")
+    iio.imwrite(tmp, frame, extension=".png")
+    tmp.replace(path)
+    return path
+
+
+def save_mp4(frames: Iterable[np.ndarray], path: Path, fps: int) -> Path:
+    import imageio.v2 as imageio
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".part.mp4")
+    with imageio.get_writer(tmp, fps=fps, codec="libx264", macro_block_size=16) as writer:
+        for frame in frames:
+            writer.append_data(frame)
+    tmp.replace(path)
+    return path
