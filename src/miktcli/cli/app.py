@@ -10,6 +10,7 @@ from typer.exceptions import TyperException
 
 from miktcli import __version__
 from miktcli.cli import envs as envs_cmd
+from miktcli.cli import teacher as teacher_cmd
 from miktcli.cli.console import debug_enabled, err
 from miktcli.errors import MiktError
 
@@ -65,6 +66,7 @@ def root(
 
 
 app.add_typer(envs_cmd.app, name="envs")
+app.add_typer(teacher_cmd.app, name="teacher")
 
 
 def main() -> None:

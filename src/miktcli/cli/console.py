@@ -8,7 +8,7 @@ from typing import Any
 
 from rich.console import Console
 
-out = Console(highlight=False, soft_wrap=True)
+out = Console(highlight=False, soft_wrap=True, width=None if os.isatty(1) else 160)
 err = Console(stderr=True, highlight=False, soft_wrap=True)
 
 

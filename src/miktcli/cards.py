@@ -1,0 +1,115 @@
+"""The pydantic cards: the single definition of what a teacher file and a run record hold."""
+
+from __future__ import annotations
+
+import datetime as dt
+import importlib.metadata
+import subprocess
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+TEACHER_SCHEMA_VERSION = 1
+RUN_SCHEMA_VERSION = 1
+
+
+def now() -> dt.datetime:
+    return dt.datetime.now(dt.UTC).replace(microsecond=0)
+
+
+def package_versions() -> dict[str, str]:
+    versions = {}
+    for pkg in ("mikt", "torch", "gymnasium", "mujoco", "numpy", "safetensors"):
+        try:
+            versions[pkg] = importlib.metadata.version(pkg)
+        except importlib.metadata.PackageNotFoundError:
+            versions[pkg] = "unknown"
+    return versions
+
+
+def code_version() -> str:
+    """The git commit of the checkout that runs (with '+dirty' for local edits), else the package version."""
+    root = Path(__file__).resolve().parents[2]
+    try:
+        commit = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=5
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no", "src"],
+            capture_output=True, text=True, timeout=5,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit, dirty = "", ""
+    if not commit:
+        return f"mikt {package_versions()['mikt']}"
+    return commit + ("+dirty" if dirty else "")
+
+
+class TeacherCard(BaseModel):
+    """Stored as JSON in the teacher's safetensors metadata."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    schema_version: int = TEACHER_SCHEMA_VERSION
+    name: str
+    version: int = Field(ge=1)
+    env: str
+    env_spec: dict[str, Any]
+    obs_dim: int = Field(gt=0)
+    act_dim: int = Field(gt=0)
+    pi_hidden: list[int]
+    vf_hidden: list[int]
+    activation: Literal["tanh"] = "tanh"
+    steps: int
+    seed: int
+    final_return: float | None
+    best_return: float | None
+    hyperparameters: dict[str, Any]
+    packages: dict[str, str]
+    code_version: str
+    source_run: str | None = None
+    created: dt.datetime
+    tensors_sha256: str
+
+    @property
+    def ref(self) -> str:
+        return f"{self.name}@v{self.version}"
+
+
+class TeacherRef(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    name: str
+    version: int
+    sha256: str
+    obs_dim: int
+    env: str
+
+
+RunStatus = Literal["running", "completed", "interrupted", "failed"]
+
+
+class RunCard(BaseModel):
+    """run.json of a run folder; checkpoints carry a copy in their metadata."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    schema_version: int = RUN_SCHEMA_VERSION
+    run_id: str
+    kind: Literal["teacher", "transfer"]
+    status: RunStatus
+    env: str
+    method: str
+    teachers: list[TeacherRef] = Field(default_factory=list)
+    seed: int
+    total_steps: int
+    steps_done: int = 0
+    config: dict[str, Any]
+    command: str
+    created: dt.datetime
+    updated: dt.datetime
+    code_version: str
+    packages: dict[str, str]
+    result: dict[str, Any] = Field(default_factory=dict)
+    error: str | None = None

@@ -1,0 +1,48 @@
+"""Runs a policy for a number of episodes, optionally capturing frames for a video."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+
+@dataclass
+class EvalResult:
+    returns: list[float]
+    lengths: list[int]
+    frames: list[np.ndarray] = field(default_factory=list)
+
+    def summary(self) -> dict[str, float]:
+        return {
+            "episodes": len(self.returns),
+            "return_mean": float(np.mean(self.returns)), "return_std": float(np.std(self.returns)),
+            "length_mean": float(np.mean(self.lengths)), "length_std": float(np.std(self.lengths)),
+        }
+
+
+def evaluate(
+    act: Callable[[torch.Tensor], torch.Tensor], env: gym.Env, episodes: int, seed: int,
+    capture_episodes: int = 0, frame_every: int = 1,
+) -> EvalResult:
+    """`act` maps a raw observation batch (1, obs_dim) to actions; frames come from the first episodes."""
+    result = EvalResult([], [])
+    low, high = env.action_space.low, env.action_space.high
+    for ep in range(episodes):
+        obs, _ = env.reset(seed=seed + ep)
+        total, length, done = 0.0, 0, False
+        while not done:
+            if ep < capture_episodes and length % frame_every == 0:
+                result.frames.append(env.render())
+            with torch.no_grad():
+                action = act(torch.as_tensor(obs, dtype=torch.float32)[None])[0].numpy()
+            obs, reward, terminated, truncated, _ = env.step(np.clip(action, low, high))
+            total += float(reward)
+            length += 1
+            done = terminated or truncated
+        result.returns.append(total)
+        result.lengths.append(length)
+    return result

@@ -1,0 +1,77 @@
+"""The policy/value modules the PPO engine trains, and the interface every one of them follows."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from miktcli.nets import MLP, ObsNormalizer
+
+LOG_2PI = math.log(2.0 * math.pi)
+
+
+def gaussian_log_prob(actions: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
+    """Log-density of a diagonal Gaussian, written out: cheaper than torch.distributions on tiny batches."""
+    z = (actions - mean) * torch.exp(-log_std)
+    return -(0.5 * z.square() + log_std + 0.5 * LOG_2PI).sum(-1)
+
+
+def gaussian_kl(mean: torch.Tensor, log_std: torch.Tensor, old_mean: torch.Tensor, old_log_std: torch.Tensor):
+    """KL(new || old) between diagonal Gaussians, per sample."""
+    var_ratio = torch.exp(2.0 * (log_std - old_log_std))
+    return (0.5 * (var_ratio + (mean - old_mean).square() * torch.exp(-2.0 * old_log_std) - 1.0)
+            - (log_std - old_log_std)).sum(-1)
+
+
+class ActorCritic(nn.Module):
+    """Interface: what the PPO engine needs from a policy/value module.
+
+    Observations reaching `action_mean`, `value` and `evaluate` are already normalised by
+    `obs_normalizer`. `evaluate` also returns the module's own extra loss terms, already weighted;
+    the engine adds them to the PPO loss and logs them.
+    """
+
+    obs_normalizer: ObsNormalizer
+    log_std: nn.Parameter
+
+    def action_mean(self, obs: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def value(self, obs: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def evaluate(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
+        return self.action_mean(obs), self.value(obs), {}
+
+    def set_progress(self, fraction: float) -> None:
+        """Called before each iteration with the fraction of training done (for schedules)."""
+
+    def diagnostics(self) -> dict[str, float]:
+        """Scalars worth logging every iteration (e.g. mixing weights)."""
+        return {}
+
+    def act(self, raw_obs: torch.Tensor, deterministic: bool = True) -> torch.Tensor:
+        """Evaluation entry point: raw observations in, actions out."""
+        mean = self.action_mean(self.obs_normalizer(raw_obs))
+        if deterministic:
+            return mean
+        return mean + torch.exp(self.log_std) * torch.randn_like(mean)
+
+
+class GaussianActorCritic(ActorCritic):
+    """Separate tanh MLPs for policy and value, state-independent log-std initialised to 0."""
+
+    def __init__(self, obs_dim: int, act_dim: int, pi_hidden=(64, 64), vf_hidden=(64, 64)):
+        super().__init__()
+        self.obs_normalizer = ObsNormalizer(obs_dim)
+        self.pi = MLP(obs_dim, list(pi_hidden), act_dim, out_gain=0.01)
+        self.vf = MLP(obs_dim, list(vf_hidden), 1, out_gain=1.0)
+        self.log_std = nn.Parameter(torch.zeros(act_dim))
+
+    def action_mean(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.pi(obs)
+
+    def value(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.vf(obs).squeeze(-1)

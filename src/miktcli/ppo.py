@@ -1,0 +1,363 @@
+"""The one PPO engine: rollout collection, GAE, the clipped loss and the update loop.
+
+It knows nothing about teachers. A policy/value module (policies.ActorCritic) may add its own loss
+terms through `evaluate`; MIKT plugs in that way. Layout and names follow CleanRL's
+ppo_continuous_action.py; every implementation detail that changes results is a field of PPOConfig and
+is recorded with each checkpoint.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from miktcli.envs.vector import SyncEnvs
+from miktcli.flatparams import FlatParameters
+from miktcli.nets import update_moments
+from miktcli.policies import ActorCritic, gaussian_kl, gaussian_log_prob
+
+
+class PPOConfig(BaseModel):
+    """The paper's hyper-parameters (Table A + the reference ppo2 defaults) and every decided detail."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    n_steps: int = Field(2048, gt=0, description="env steps per env per rollout")
+    num_envs: int = Field(1, gt=0, description="synchronous environments")
+    epochs: int = Field(10, gt=0)
+    minibatch_size: int = Field(64, gt=0)
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_range: float = 0.2
+    learning_rate: float = 3e-4
+    lr_schedule: str = Field("linear", pattern="^(linear|constant)$", description="linear decay to 0")
+    adam_eps: float = 1e-5
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    clip_value_loss: bool = Field(True, description="ppo2-style clipped value loss, same range as the policy")
+    normalize_advantage: bool = Field(True, description="per minibatch")
+    obs_normalization: bool = Field(True, description="running mean/std, updated every step, clip ±10")
+    reward_scaling: bool = Field(True, description="divide by running std of the discounted return")
+    reward_clip: float = 10.0
+    kl_coef: float = Field(0.0, ge=0, description="weight of KL(pi || pi_old) added to the loss")
+    bootstrap_truncation: bool = Field(True, description="time-limit ends bootstrap V(final obs)")
+    autoreset: str = Field("same-step", description="envs reset on the ending step; no dummy transitions")
+    log_std_init: float = 0.0
+    init: str = "orthogonal: gain sqrt(2) hidden, 0.01 policy head, 1.0 value head"
+
+    @property
+    def batch_size(self) -> int:
+        return self.n_steps * self.num_envs
+
+
+class RewardScaler:
+    """Scales rewards by the running std of the discounted return (baselines' VecNormalize)."""
+
+    def __init__(self, num_envs: int, gamma: float, clip: float):
+        self.gamma, self.clip = gamma, clip
+        self.returns = np.zeros(num_envs)
+        self.mean = np.zeros(1)
+        self.var = np.ones(1)
+        self.count = 0.0
+
+    def __call__(self, rewards: np.ndarray, dones: np.ndarray) -> np.ndarray:
+        self.returns = self.returns * self.gamma + rewards
+        self.count = update_moments(self.mean, self.var, self.count, self.returns[:, None])
+        self.returns[dones] = 0.0
+        return np.clip(rewards / np.sqrt(self.var + 1e-8), -self.clip, self.clip)
+
+    def state(self) -> dict[str, torch.Tensor]:
+        return {
+            "returns": torch.from_numpy(self.returns.copy()),
+            "moments": torch.tensor([self.mean[0], self.var[0], self.count], dtype=torch.float64),
+        }
+
+    def load(self, state: dict[str, torch.Tensor]) -> None:
+        self.returns = state["returns"].numpy().copy()
+        self.mean[0], self.var[0], self.count = (float(v) for v in state["moments"])
+
+
+def compute_gae(
+    rewards: np.ndarray, values: np.ndarray, next_values: np.ndarray, terminated: np.ndarray,
+    dones: np.ndarray, gamma: float, lam: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """GAE over (T, N) arrays.
+
+    next_values[t] is V of the state after step t: of the next observation while the episode goes on,
+    of the final observation where it was truncated (bootstrap), anything where it terminated (masked).
+    dones[t] (terminated or truncated) stops the advantage from flowing across an episode boundary.
+    """
+    advantages = np.zeros_like(rewards)
+    last = np.zeros(rewards.shape[1])
+    for t in range(rewards.shape[0] - 1, -1, -1):
+        delta = rewards[t] + gamma * next_values[t] * (1.0 - terminated[t]) - values[t]
+        last = delta + gamma * lam * (1.0 - dones[t]) * last
+        advantages[t] = last
+    return advantages, advantages + values
+
+
+@dataclass
+class Rollout:
+    obs: np.ndarray  # (T, N, obs_dim) normalised, float32
+    actions: np.ndarray  # (T, N, act_dim) unclipped samples
+    rewards: np.ndarray  # (T, N) scaled
+    terminated: np.ndarray
+    dones: np.ndarray
+    final_obs: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)  # (t, i) -> normalised obs
+    last_obs: np.ndarray | None = None  # normalised obs after the last step
+
+
+class PPOTrainer:
+    """Trains an ActorCritic on a vector of envs. Iterate `run()` to get one metrics dict per update."""
+
+    def __init__(
+        self,
+        agent: ActorCritic,
+        make_env: Callable[[], gym.Env],
+        config: PPOConfig,
+        total_steps: int,
+        seed: int,
+    ):
+        self.agent, self.config, self.seed = agent, config, seed
+        self.total_steps = total_steps
+        self.num_iterations = max(1, total_steps // config.batch_size)
+        self.iteration = 0
+        self.global_step = 0
+        self.envs = SyncEnvs([make_env() for _ in range(config.num_envs)], seed)
+        self.rng = np.random.default_rng(seed)
+        self.torch_gen = torch.Generator().manual_seed(seed)
+        self.reward_scaler = RewardScaler(config.num_envs, config.gamma, config.reward_clip)
+        self.agent.obs_normalizer.frozen = not config.obs_normalization
+        with torch.no_grad():
+            self.agent.log_std.fill_(config.log_std_init)
+        self.flat = FlatParameters([p for p in agent.parameters() if p.requires_grad])
+        try:
+            self.optimizer = torch.optim.Adam([self.flat.flat], lr=config.learning_rate, eps=config.adam_eps,
+                                              fused=True)
+        except (RuntimeError, TypeError):  # fused Adam needs a recent CPU build; the result is the same
+            self.optimizer = torch.optim.Adam([self.flat.flat], lr=config.learning_rate, eps=config.adam_eps)
+        self.recent_returns: deque[float] = deque(maxlen=100)
+        self.recent_lengths: deque[int] = deque(maxlen=100)
+        self.episodes = 0
+
+    # --- rollout ------------------------------------------------------------------------------------
+    def collect(self) -> tuple[Rollout, dict[str, float]]:
+        cfg, envs, agent = self.config, self.envs, self.agent
+        T, N = cfg.n_steps, cfg.num_envs
+        obs_dim = envs.obs.shape[1]
+        act_dim = agent.log_std.shape[0]
+        ro = Rollout(
+            obs=np.empty((T, N, obs_dim), np.float32), actions=np.empty((T, N, act_dim), np.float32),
+            rewards=np.empty((T, N)), terminated=np.zeros((T, N)), dones=np.zeros((T, N)),
+        )
+        std = np.exp(agent.log_std.detach().numpy())
+        noise = self.rng.standard_normal((T, N, act_dim)).astype(np.float32) * std
+        normalizer = agent.obs_normalizer
+        t_env = t_inf = 0.0
+        finished: list[tuple[float, int]] = []
+        obs_raw = envs.obs
+        with torch.no_grad():
+            for t in range(T):
+                t0 = time.perf_counter()
+                normalizer.update(obs_raw)
+                obs = normalizer.normalize_np(obs_raw)
+                mean = agent.action_mean(torch.from_numpy(obs)).numpy()
+                actions = mean + noise[t]
+                ro.obs[t], ro.actions[t] = obs, actions
+                t1 = time.perf_counter()
+                step = envs.step(actions)
+                t_env += time.perf_counter() - t1
+                dones = step.terminated | step.truncated
+                ro.rewards[t] = self.reward_scaler(step.rewards, dones) if cfg.reward_scaling else step.rewards
+                ro.terminated[t], ro.dones[t] = step.terminated, dones
+                for i, final in step.final_obs.items():
+                    ro.final_obs[(t, i)] = normalizer.normalize_np(final[None])[0]
+                finished += step.finished
+                obs_raw = step.obs
+                t_inf += t1 - t0
+        ro.last_obs = normalizer.normalize_np(obs_raw)
+        for ret, length in finished:
+            self.recent_returns.append(ret)
+            self.recent_lengths.append(length)
+        self.episodes += len(finished)
+        stats = {
+            "time_env": t_env, "time_inference": t_inf,
+            "episodes_finished": len(finished),
+            "episode_return_iter": float(np.mean([r for r, _ in finished])) if finished else float("nan"),
+        }
+        return ro, stats
+
+    # --- advantages ---------------------------------------------------------------------------------
+    def _values_and_targets(self, ro: Rollout) -> dict[str, torch.Tensor]:
+        cfg, agent = self.config, self.agent
+        T, N = ro.rewards.shape
+        obs = torch.from_numpy(ro.obs.reshape(T * N, -1))
+        with torch.no_grad():
+            # One batched pass after the rollout: the network did not change during it.
+            mean, values, _ = agent.evaluate(obs)
+            values = values.numpy().reshape(T, N).astype(np.float64)
+            last_values = agent.value(torch.from_numpy(ro.last_obs)).numpy().astype(np.float64)
+            next_values = np.concatenate([values[1:], last_values[None]], axis=0)
+            if ro.final_obs and cfg.bootstrap_truncation:
+                keys = list(ro.final_obs)
+                finals = agent.value(torch.from_numpy(np.stack([ro.final_obs[k] for k in keys])))
+                for (t, i), v in zip(keys, finals.numpy(), strict=True):
+                    next_values[t, i] = v
+            elif ro.final_obs:
+                for t, i in ro.final_obs:
+                    ro.terminated[t, i] = 1.0  # treat the time limit as terminal, as asked
+            actions = torch.from_numpy(ro.actions.reshape(T * N, -1))
+            log_probs = gaussian_log_prob(actions, mean, agent.log_std)
+        advantages, returns = compute_gae(
+            ro.rewards, values, next_values, ro.terminated, ro.dones, cfg.gamma, cfg.gae_lambda
+        )
+        return {
+            "obs": obs, "actions": actions, "log_probs": log_probs, "means": mean,
+            "advantages": torch.from_numpy(advantages.reshape(-1).astype(np.float32)),
+            "returns": torch.from_numpy(returns.reshape(-1).astype(np.float32)),
+            "values": torch.from_numpy(values.reshape(-1).astype(np.float32)),
+        }
+
+    # --- update -------------------------------------------------------------------------------------
+    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+        cfg, agent = self.config, self.agent
+        b_obs, b_actions, b_logprobs = batch["obs"], batch["actions"], batch["log_probs"]
+        b_adv, b_returns, b_values, b_means = batch["advantages"], batch["returns"], batch["values"], batch["means"]
+        old_log_std = agent.log_std.detach().clone()
+        size = b_obs.shape[0]
+        sums: dict[str, float] = {}
+        n_mb = 0
+        first_ratio_dev = 0.0
+        for epoch in range(cfg.epochs):
+            perm = torch.randperm(size, generator=self.torch_gen)
+            for start in range(0, size, cfg.minibatch_size):
+                mb_inds = perm[start : start + cfg.minibatch_size]
+                mean, value, extra = agent.evaluate(b_obs[mb_inds])
+                new_logprob = gaussian_log_prob(b_actions[mb_inds], mean, agent.log_std)
+                logratio = new_logprob - b_logprobs[mb_inds]
+                ratio = logratio.exp()
+                mb_adv = b_adv[mb_inds]
+                if cfg.normalize_advantage and mb_adv.numel() > 1:
+                    mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
+                pg_loss = torch.max(
+                    -mb_adv * ratio, -mb_adv * ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range)
+                ).mean()
+                mb_returns = b_returns[mb_inds]
+                if cfg.clip_value_loss:
+                    mb_values = b_values[mb_inds]
+                    v_clipped = mb_values + (value - mb_values).clamp(-cfg.clip_range, cfg.clip_range)
+                    v_loss = 0.5 * torch.max((value - mb_returns).square(), (v_clipped - mb_returns).square()).mean()
+                else:
+                    v_loss = 0.5 * (value - mb_returns).square().mean()
+                loss = pg_loss + cfg.vf_coef * v_loss
+                if cfg.ent_coef:
+                    entropy = (agent.log_std + 0.5 * (1.0 + np.log(2 * np.pi))).sum()
+                    loss = loss - cfg.ent_coef * entropy
+                if cfg.kl_coef:
+                    kl = gaussian_kl(mean, agent.log_std, b_means[mb_inds], old_log_std).mean()
+                    loss = loss + cfg.kl_coef * kl
+                    extra = {**extra, "loss_kl": cfg.kl_coef * kl}
+                for term in extra.values():
+                    loss = loss + term
+                self.flat.zero_grad()
+                loss.backward()
+                grad_norm = self.flat.clip_grad_norm(cfg.max_grad_norm)
+                self.optimizer.step()
+
+                with torch.no_grad():
+                    if n_mb == 0:
+                        first_ratio_dev = float((ratio - 1.0).abs().max())
+                    logs = {
+                        "loss_policy": pg_loss, "loss_value": v_loss, "grad_norm": grad_norm,
+                        "approx_kl": ((ratio - 1) - logratio).mean(),
+                        "clipfrac": ((ratio - 1.0).abs() > cfg.clip_range).float().mean(),
+                        **{k: v.detach() for k, v in extra.items()},
+                    }
+                    for k, v in logs.items():
+                        sums[k] = sums.get(k, 0.0) + float(v)
+                n_mb += 1
+        metrics = {k: v / n_mb for k, v in sums.items()}
+        metrics["first_minibatch_ratio_dev"] = first_ratio_dev
+        var_y = float(b_returns.var())
+        metrics["explained_variance"] = float("nan") if var_y == 0 else 1 - float((b_returns - b_values).var()) / var_y
+        return metrics
+
+    # --- the loop -----------------------------------------------------------------------------------
+    def run(self) -> Iterator[dict[str, Any]]:
+        cfg = self.config
+        while self.iteration < self.num_iterations:
+            progress = self.iteration / self.num_iterations
+            self.agent.set_progress(progress)
+            lr = cfg.learning_rate * (1.0 - progress if cfg.lr_schedule == "linear" else 1.0)
+            for group in self.optimizer.param_groups:
+                group["lr"] = lr
+            t_start = time.perf_counter()
+            rollout, stats = self.collect()
+            t_rollout = time.perf_counter() - t_start
+            batch = self._values_and_targets(rollout)
+            losses = self.update(batch)
+            t_total = time.perf_counter() - t_start
+            self.iteration += 1
+            self.global_step += cfg.batch_size
+            yield {
+                "iteration": self.iteration,
+                "steps": self.global_step,
+                "episodes": self.episodes,
+                "return_mean": float(np.mean(self.recent_returns)) if self.recent_returns else float("nan"),
+                "length_mean": float(np.mean(self.recent_lengths)) if self.recent_lengths else float("nan"),
+                "lr": lr,
+                "log_std_mean": float(self.agent.log_std.detach().mean()),
+                "steps_per_sec": cfg.batch_size / t_total,
+                "time_rollout": t_rollout,
+                "time_update": t_total - t_rollout,
+                **stats,
+                **losses,
+                **self.agent.diagnostics(),
+            }
+
+    # --- state for checkpoints and resume -----------------------------------------------------------
+    def state_tensors(self) -> dict[str, torch.Tensor]:
+        state = {f"agent.{k}": v.detach().clone().contiguous() for k, v in self.agent.state_dict().items()}
+        opt = self.optimizer.state_dict()["state"].get(0, {})
+        for k, v in opt.items():
+            state[f"optim.{k}"] = torch.as_tensor(v).clone().contiguous()
+        for k, v in self.reward_scaler.state().items():
+            state[f"reward_scaler.{k}"] = v
+        return state
+
+    def progress_state(self) -> dict[str, Any]:
+        return {
+            "iteration": self.iteration, "global_step": self.global_step, "episodes": self.episodes,
+            "recent_returns": list(self.recent_returns), "recent_lengths": list(self.recent_lengths),
+            "numpy_rng": self.rng.bit_generator.state, "torch_rng": self.torch_gen.get_state().tolist(),
+        }
+
+    def load_state(self, tensors: dict[str, torch.Tensor], progress: dict[str, Any]) -> None:
+        agent_state = {k[len("agent."):]: v for k, v in tensors.items() if k.startswith("agent.")}
+        self.agent.load_state_dict(agent_state)  # copies in place: the flat-buffer views survive
+        opt_state = {k[len("optim."):]: v for k, v in tensors.items() if k.startswith("optim.")}
+        if opt_state:
+            sd = self.optimizer.state_dict()
+            sd["state"] = {0: opt_state}
+            self.optimizer.load_state_dict(sd)
+        self.reward_scaler.load({k[len("reward_scaler."):]: v for k, v in tensors.items()
+                                 if k.startswith("reward_scaler.")})
+        self.iteration = progress["iteration"]
+        self.global_step = progress["global_step"]
+        self.episodes = progress["episodes"]
+        self.recent_returns.extend(progress["recent_returns"])
+        self.recent_lengths.extend(progress["recent_lengths"])
+        self.rng.bit_generator.state = progress["numpy_rng"]
+        self.torch_gen.set_state(torch.tensor(progress["torch_rng"], dtype=torch.uint8))
+
+    def close(self) -> None:
+        self.envs.close()

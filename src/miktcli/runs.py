@@ -1,0 +1,156 @@
+"""Run folders: registry/runs/runN/ with run.json (RunCard), metrics.jsonl and checkpoints.
+
+Every `teacher train` and `transfer` is a run. Checkpoints hold the complete training state (weights,
+optimiser moments, normaliser and reward statistics, RNG states), so an interrupted run resumes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import torch
+from pydantic import BaseModel, ConfigDict
+
+from miktcli.atomic import append_line, write_text_atomic
+from miktcli.cards import RUN_SCHEMA_VERSION, RunCard, now
+from miktcli.checkpoint import read_card, read_tensors, save_with_card, tensors_sha256, verify_sha
+from miktcli.errors import MiktError
+
+RUN_RE = re.compile(r"^run(\d+)$")
+CHECKPOINT_SCHEMA_VERSION = 1
+
+
+class CheckpointCard(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    schema_version: int = CHECKPOINT_SCHEMA_VERSION
+    run_id: str
+    iteration: int
+    steps: int
+    progress: dict[str, Any]
+    tensors_sha256: str
+
+
+def runs_dir(registry: Path) -> Path:
+    return Path(registry) / "runs"
+
+
+def run_ids(registry: Path) -> list[str]:
+    root = runs_dir(registry)
+    if not root.is_dir():
+        return []
+    found = [(int(m.group(1)), p.name) for p in root.iterdir() if (m := RUN_RE.match(p.name)) and p.is_dir()]
+    return [name for _, name in sorted(found)]
+
+
+def _json_safe(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None  # JSON has no NaN; a missing mean (no episode finished yet) becomes null
+    return value
+
+
+class Run:
+    def __init__(self, path: Path, card: RunCard):
+        self.path, self.card = path, card
+
+    @property
+    def id(self) -> str:
+        return self.card.run_id
+
+    @property
+    def metrics_path(self) -> Path:
+        return self.path / "metrics.jsonl"
+
+    @property
+    def checkpoint_path(self) -> Path:
+        return self.path / "checkpoint.safetensors"
+
+    def save_card(self, **updates: Any) -> None:
+        self.card = self.card.model_copy(update={**updates, "updated": now()})
+        write_text_atomic(self.path / "run.json", self.card.model_dump_json(indent=2))
+
+    def append_metrics(self, metrics: dict[str, Any]) -> None:
+        append_line(self.metrics_path, json.dumps({k: _json_safe(v) for k, v in metrics.items()}))
+
+    def read_metrics(self) -> list[dict[str, Any]]:
+        if not self.metrics_path.exists():
+            return []
+        rows = []
+        for line in self.metrics_path.read_text().splitlines():
+            try:
+                rows.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue  # a line cut by a crash: the rows before it stand
+        return rows
+
+    def truncate_metrics(self, iteration: int) -> None:
+        """Drop rows newer than the checkpoint being resumed, so the curve has no duplicates."""
+        rows = [r for r in self.read_metrics() if r.get("iteration", 0) <= iteration]
+        write_text_atomic(self.metrics_path, "".join(json.dumps(r) + "\n" for r in rows))
+
+    def save_checkpoint(self, tensors: dict[str, torch.Tensor], iteration: int, steps: int,
+                        progress: dict[str, Any], path: Path | None = None) -> None:
+        card = CheckpointCard(run_id=self.id, iteration=iteration, steps=steps, progress=progress,
+                              tensors_sha256=tensors_sha256(tensors))
+        save_with_card(path or self.checkpoint_path, tensors, card)
+
+    def load_checkpoint(self, path: Path | None = None) -> tuple[CheckpointCard, dict[str, torch.Tensor]]:
+        path = path or self.checkpoint_path
+        if not path.exists():
+            raise MiktError(f"run '{self.id}' has no checkpoint yet ({path.name})")
+        card = read_card(path, CheckpointCard, CHECKPOINT_SCHEMA_VERSION)
+        tensors = read_tensors(path)
+        verify_sha(path, tensors, card.tensors_sha256)
+        return card, tensors
+
+
+def create_run(registry: Path, **fields: Any) -> Run:
+    """Allocate the next runN atomically (mkdir fails if another process took it)."""
+    root = runs_dir(registry)
+    root.mkdir(parents=True, exist_ok=True)
+    while True:
+        ids = run_ids(registry)
+        number = int(ids[-1][3:]) + 1 if ids else 1
+        path = root / f"run{number}"
+        try:
+            path.mkdir()
+            break
+        except FileExistsError:
+            continue
+    stamp = now()
+    card = RunCard(run_id=path.name, status="running", created=stamp, updated=stamp, **fields)
+    run = Run(path, card)
+    run.save_card()
+    return run
+
+
+def open_run(registry: Path, run_id: str) -> Run:
+    path = runs_dir(registry) / run_id
+    card_path = path / "run.json"
+    if not card_path.is_file():
+        known = ", ".join(run_ids(registry)) or "(none)"
+        raise MiktError(f"unknown run '{run_id}' in {registry}; known: {known}")
+    try:
+        raw = json.loads(card_path.read_text())
+    except json.JSONDecodeError as err:
+        raise MiktError(f"{card_path}: not valid JSON: {err}") from err
+    if isinstance(raw, dict) and isinstance(raw.get("schema_version"), int) and raw["schema_version"] > RUN_SCHEMA_VERSION:
+        raise MiktError(f"{card_path}: schema version {raw['schema_version']} is newer than this mikt understands")
+    try:
+        return Run(path, RunCard.model_validate(raw))
+    except ValueError as err:
+        raise MiktError(f"{card_path}: invalid run card: {err}".splitlines()[0]) from err
+
+
+def list_runs(registry: Path) -> list[Run]:
+    runs = []
+    for run_id in run_ids(registry):
+        try:
+            runs.append(open_run(registry, run_id))
+        except MiktError:
+            continue  # a folder being created right now, or a damaged one: `mikt inspect` names the problem
+    return runs

@@ -1,0 +1,127 @@
+"""The teacher registry: registry/teachers/NAME/vN.safetensors, immutable versions, `latest` alias.
+
+`latest` is the highest version present, derived from the files themselves: there is no index that a
+crash could leave half-updated.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from miktcli.cards import TEACHER_SCHEMA_VERSION, TeacherCard
+from miktcli.checkpoint import read_card, read_tensors, save_with_card, tensors_sha256, verify_sha
+from miktcli.errors import MiktError
+from miktcli.policies import GaussianActorCritic
+
+NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
+REF_RE = re.compile(r"^(?P<name>[^@]+)(@(?P<version>v\d+|latest))?$")
+VERSION_FILE_RE = re.compile(r"^v(\d+)\.safetensors$")
+
+
+def teachers_dir(registry: Path) -> Path:
+    return Path(registry) / "teachers"
+
+
+def check_name(name: str) -> str:
+    if not NAME_RE.match(name):
+        raise MiktError(f"invalid teacher name '{name}': use lowercase letters, digits, '.', '_' and '-'")
+    return name
+
+
+def list_names(registry: Path) -> list[str]:
+    root = teachers_dir(registry)
+    return sorted(p.name for p in root.iterdir() if p.is_dir() and versions(registry, p.name)) if root.is_dir() else []
+
+
+def versions(registry: Path, name: str) -> list[int]:
+    folder = teachers_dir(registry) / name
+    if not folder.is_dir():
+        return []
+    found = (VERSION_FILE_RE.match(p.name) for p in folder.iterdir())
+    return sorted(int(m.group(1)) for m in found if m)
+
+
+def resolve(registry: Path, ref: str) -> Path:
+    """`name`, `name@latest` or `name@vN` → the file; unknown names and versions list what exists."""
+    m = REF_RE.match(ref)
+    if not m:
+        raise MiktError(f"invalid teacher reference '{ref}': expected NAME or NAME@vN")
+    name, version = m.group("name"), m.group("version")
+    known = versions(registry, name)
+    if not known:
+        names = ", ".join(list_names(registry)) or "(none)"
+        raise MiktError(f"unknown teacher '{name}' in {registry}; known: {names}",
+                        hint=f"train one with: mikt teacher train ENV --name {name}")
+    number = known[-1] if version in (None, "latest") else int(version[1:])
+    if number not in known:
+        raise MiktError(f"teacher '{name}' has no version v{number}; versions: "
+                        + ", ".join(f"v{v}" for v in known))
+    return teachers_dir(registry) / name / f"v{number}.safetensors"
+
+
+def check_card_against_tensors(path: Path, card: TeacherCard, tensors: dict[str, torch.Tensor]) -> None:
+    """The card's dims and layer sizes must be those of the stored tensors."""
+    def shape(key: str) -> tuple[int, ...]:
+        if key not in tensors:
+            raise MiktError(f"{path}: tensor '{key}' is missing")
+        return tuple(tensors[key].shape)
+
+    expected = {"obs_normalizer.mean": (card.obs_dim,), "log_std": (card.act_dim,)}
+    for net, hidden, n_out in (("pi", card.pi_hidden, card.act_dim), ("vf", card.vf_hidden, 1)):
+        sizes = [card.obs_dim, *hidden]
+        for j, (a, b) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)):
+            expected[f"{net}.hidden.{j}.weight"] = (b, a)
+        expected[f"{net}.head.weight"] = (n_out, sizes[-1])
+    for key, want in expected.items():
+        got = shape(key)
+        if got != want:
+            raise MiktError(f"{path}: card disagrees with tensor '{key}': card implies {want}, tensor is {got}")
+    for net, hidden in (("pi", card.pi_hidden), ("vf", card.vf_hidden)):
+        if f"{net}.hidden.{len(hidden)}.weight" in tensors:
+            raise MiktError(f"{path}: card lists {len(hidden)} {net} hidden layers but the file has more")
+
+
+def read_teacher_card(path: Path) -> TeacherCard:
+    return read_card(path, TeacherCard, TEACHER_SCHEMA_VERSION)
+
+
+@dataclass
+class Teacher:
+    card: TeacherCard
+    path: Path
+    policy: GaussianActorCritic
+
+
+def load_teacher(registry: Path, ref: str) -> Teacher:
+    """Load and fully verify a teacher: card, shapes and sha256. Its normaliser comes back frozen."""
+    path = resolve(registry, ref)
+    card = read_teacher_card(path)
+    tensors = read_tensors(path)
+    check_card_against_tensors(path, card, tensors)
+    verify_sha(path, tensors, card.tensors_sha256)
+    policy = GaussianActorCritic(card.obs_dim, card.act_dim, card.pi_hidden, card.vf_hidden)
+    policy.load_state_dict(tensors)
+    policy.obs_normalizer.frozen = True
+    policy.requires_grad_(False)
+    policy.eval()
+    return Teacher(card, path, policy)
+
+
+def publish_teacher(registry: Path, card: TeacherCard, policy: GaussianActorCritic) -> TeacherCard:
+    """Write the next version of `card.name`. The file appears whole or not at all, and is never replaced."""
+    check_name(card.name)
+    tensors = {k: v.detach().clone().contiguous() for k, v in policy.state_dict().items()}
+    for _ in range(100):  # another process may take the same number first: try the next one
+        number = (versions(registry, card.name) or [0])[-1] + 1
+        final = card.model_copy(update={"version": number, "tensors_sha256": tensors_sha256(tensors)})
+        path = teachers_dir(registry) / card.name / f"v{number}.safetensors"
+        try:
+            save_with_card(path, tensors, final, exclusive=True)
+            return final
+        except FileExistsError:
+            continue
+    raise MiktError(f"could not allocate a version for teacher '{card.name}'")

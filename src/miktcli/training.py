@@ -1,0 +1,97 @@
+"""Drives a run: builds the agent and PPO trainer from the run card, checkpoints every iteration,
+marks interruptions, resumes, and finishes (publishing a teacher or saving a student)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from miktcli.cards import code_version, package_versions
+from miktcli.envs import load_spec, make_env
+from miktcli.errors import MiktError
+from miktcli.ppo import PPOConfig, PPOTrainer
+from miktcli.runs import Run, create_run
+
+
+def new_run(registry: Path, *, kind: str, env: str, method: str, seed: int, total_steps: int,
+            config: dict[str, Any], command: str, teachers: list | None = None) -> Run:
+    ppo = PPOConfig.model_validate(config.get("ppo", {}))
+    if total_steps < ppo.batch_size:
+        raise MiktError(f"--steps {total_steps} is less than one rollout ({ppo.batch_size} steps)")
+    load_spec(env)  # fail on an unknown env before a run folder exists
+    return create_run(
+        registry, kind=kind, env=env, method=method, seed=seed, total_steps=total_steps, config=config,
+        command=command, teachers=teachers or [], code_version=code_version(), packages=package_versions(),
+    )
+
+
+class Job:
+    """A run's agent and trainer, restored from its last checkpoint when there is one."""
+
+    def __init__(self, run: Run, registry: Path, build_agent: Callable[[Run, Path], torch.nn.Module]):
+        self.run, self.registry = run, registry
+        torch.manual_seed(run.card.seed)
+        self.spec = load_spec(run.card.env)
+        self.agent = build_agent(run, registry)
+        self.config = PPOConfig.model_validate(run.card.config.get("ppo", {}))
+        self.trainer = PPOTrainer(self.agent, lambda: make_env(self.spec), self.config, run.card.total_steps,
+                                  seed=run.card.seed)
+        self.best_return = -math.inf
+        if run.checkpoint_path.exists():
+            ckpt, tensors = run.load_checkpoint()
+            self.trainer.load_state(tensors, ckpt.progress)
+            self.best_return = ckpt.progress.get("best_return", -math.inf)
+            run.truncate_metrics(ckpt.iteration)
+
+    def iterations(self) -> Iterator[dict[str, Any]]:
+        """Train to the end, checkpointing after every iteration. Ctrl-C marks the run interrupted."""
+        run, trainer = self.run, self.trainer
+        run.save_card(status="running", error=None)
+        try:
+            for metrics in trainer.run():
+                if math.isfinite(metrics["return_mean"]):
+                    self.best_return = max(self.best_return, metrics["return_mean"])
+                progress = {**trainer.progress_state(), "best_return": self.best_return}
+                # Checkpoint first: a metrics row never describes an iteration the checkpoint lacks.
+                run.save_checkpoint(trainer.state_tensors(), trainer.iteration, trainer.global_step, progress)
+                run.append_metrics(metrics)
+                run.save_card(steps_done=trainer.global_step)
+                yield metrics
+        except KeyboardInterrupt:
+            run.save_card(status="interrupted")
+            raise
+        except Exception as err:
+            run.save_card(status="failed", error=f"{type(err).__name__}: {err}")
+            raise
+        finally:
+            trainer.close()
+
+    @property
+    def final_return(self) -> float | None:
+        returns = self.trainer.recent_returns
+        return float(sum(returns) / len(returns)) if returns else None
+
+
+def publish_teacher_from_job(job: Job, name: str) -> Any:
+    """Put a finished teacher run's policy into the registry as the next version of `name`."""
+    from miktcli.cards import TeacherCard, now
+    from miktcli.teachers import publish_teacher
+
+    card = job.run.card
+    teacher = TeacherCard(
+        name=name, version=1, env=card.env, env_spec=job.spec.model_dump(), obs_dim=job.spec.obs_dim,
+        act_dim=job.spec.act_dim, pi_hidden=card.config["pi_hidden"], vf_hidden=card.config["vf_hidden"],
+        steps=job.trainer.global_step, seed=card.seed, final_return=job.final_return,
+        best_return=job.best_return if math.isfinite(job.best_return) else None,
+        hyperparameters=card.config["ppo"], packages=card.packages, code_version=card.code_version,
+        source_run=card.run_id, created=now(), tensors_sha256="",
+    )
+    published = publish_teacher(job.registry, teacher, job.agent)
+    job.run.save_card(status="completed", result={
+        "teacher": published.ref, "final_return": published.final_return, "best_return": published.best_return,
+    })
+    return published
