@@ -10,7 +10,11 @@ from typer.exceptions import TyperException
 
 from miktcli import __version__
 from miktcli.cli import envs as envs_cmd
+from miktcli.cli import eval as eval_cmd
+from miktcli.cli import inspect as inspect_cmd
+from miktcli.cli import runs as runs_cmd
 from miktcli.cli import teacher as teacher_cmd
+from miktcli.cli import transfer as transfer_cmd
 from miktcli.cli.console import debug_enabled, err
 from miktcli.errors import MiktError
 
@@ -67,6 +71,10 @@ def root(
 
 app.add_typer(envs_cmd.app, name="envs")
 app.add_typer(teacher_cmd.app, name="teacher")
+app.command("transfer", help=transfer_cmd.HELP, no_args_is_help=True)(transfer_cmd.transfer)
+app.command("eval", help=eval_cmd.HELP, no_args_is_help=True)(eval_cmd.eval_command)
+app.command("inspect", help=inspect_cmd.HELP, no_args_is_help=True)(inspect_cmd.inspect)
+app.command("runs")(runs_cmd.runs)
 
 
 def main() -> None:

@@ -1,0 +1,28 @@
+"""MLPP (paper §4): the teacher's middle stack as initialisation; fresh input and output layers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from miktcli.policies import GaussianActorCritic
+
+
+def mlpp_from_teacher(teacher: GaussianActorCritic, obs_dim: int, act_dim: int) -> GaussianActorCritic:
+    """Copy every hidden→hidden layer of the teacher's policy and value MLPs; all layers are then fine-tuned."""
+    student = GaussianActorCritic(obs_dim, act_dim, teacher.pi.hidden_sizes, teacher.vf.hidden_sizes)
+    with torch.no_grad():
+        for net, source in ((student.pi, teacher.pi), (student.vf, teacher.vf)):
+            for j in range(1, len(net.hidden)):  # layer 0 reads the observation: it stays fresh
+                net.hidden[j].weight.copy_(source.hidden[j].weight)
+                net.hidden[j].bias.copy_(source.hidden[j].bias)
+    student.requires_grad_(True)
+    return student
+
+
+def build_mlpp(run, registry: Path, spec) -> GaussianActorCritic:
+    from miktcli.transfer import load_run_teachers
+
+    teachers = load_run_teachers(run, registry)
+    return mlpp_from_teacher(teachers[0].policy, spec.obs_dim, spec.act_dim)

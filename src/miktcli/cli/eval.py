@@ -1,0 +1,67 @@
+"""`mikt eval`: evaluate a teacher or a run's student; optionally render an MP4 offscreen."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from miktcli.cli.common import registry_option, resolve_registry, setup_torch
+from miktcli.cli.console import err, print_json
+
+HELP = """Evaluate a teacher (NAME or NAME@vN) or a run's student (runN).
+
+Examples:
+
+  mikt eval hopper --episodes 20
+
+  mikt eval run3 --with-teacher
+
+  mikt eval run3 --render-offscreen --video run3.mp4
+"""
+
+
+def eval_command(
+    target: str = typer.Argument(..., help="Teacher NAME or NAME@vN or runN."),
+    episodes: int = typer.Option(10, "--episodes", min=1),
+    seed: int = typer.Option(0, "--seed", help="Seed of the first episode; episode i uses seed + i."),
+    deterministic: bool = typer.Option(True, "--deterministic/--stochastic", help="Mean action or sampled."),
+    with_teacher: bool = typer.Option(False, "--with-teacher", help="Runs: evaluate the student with its teacher."),
+    render_offscreen: bool = typer.Option(False, "--render-offscreen", help="Write an MP4 and a PNG poster."),
+    video: Path = typer.Option(None, "--video", help="MP4 path (default: TARGET-eval.mp4); implies rendering."),
+    video_frames: int = typer.Option(300, "--video-frames", min=1, help="Frames to record from episode 1."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
+    registry: Path = registry_option(),
+) -> None:
+    import torch
+
+    from miktcli.envs import make_env
+    from miktcli.evaluation import evaluate
+    from miktcli.render import save_mp4, save_png
+    from miktcli.targets import load_policy
+
+    setup_torch()
+    reg = resolve_registry(registry)
+    policy, env_name, label = load_policy(reg, target, with_teacher)
+    render = render_offscreen or video is not None
+    env = make_env(env_name, render_mode="rgb_array" if render else None)
+    torch.manual_seed(seed)
+    try:
+        res = evaluate(lambda o: policy.act(o, deterministic), env, episodes, seed,
+                       capture_episodes=1 if render else 0)
+    finally:
+        env.close()
+    summary = {"target": target, "policy": label, "env": env_name, "deterministic": deterministic,
+               **res.summary()}
+    if render:
+        video = video or Path(f"{target.replace('@', '-')}-eval.mp4")
+        frames = res.frames[:video_frames]
+        save_mp4(frames, video, fps=int(env.metadata.get("render_fps", 20)))
+        poster = save_png(frames[len(frames) // 2], video.with_suffix(".png"))
+        summary.update(video=str(video), poster=str(poster))
+        err.print(f"wrote {video} ({len(frames)} frames) and {poster}")
+    if as_json:
+        print_json(summary)
+        return
+    print(f"{label} on {env_name}: return {summary['return_mean']:.1f} ± {summary['return_std']:.1f}, "
+          f"length {summary['length_mean']:.0f} ± {summary['length_std']:.0f} over {episodes} episodes")

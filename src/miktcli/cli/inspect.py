@@ -1,0 +1,97 @@
+"""`mikt inspect`: a run's card, mixing weights and learning curve, or a teacher's card."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.table import Table
+
+from miktcli.cli.common import registry_option, resolve_registry
+from miktcli.cli.console import err, out, print_json
+
+HELP = """Inspect a run (runN) or a teacher (NAME or NAME@vN).
+
+Examples:
+
+  mikt inspect run1 --coupling
+
+  mikt inspect run1 --curve --plot curve.png
+
+  mikt inspect run1 --json
+
+  mikt inspect centipede-four@v1
+"""
+
+
+def _is_run(target: str) -> bool:
+    from miktcli.runs import RUN_RE
+
+    return bool(RUN_RE.match(target))
+
+
+def _sampled(rows: list[dict], n: int) -> list[dict]:
+    if len(rows) <= n:
+        return rows
+    idx = sorted({round(i * (len(rows) - 1) / (n - 1)) for i in range(n)})
+    return [rows[i] for i in idx]
+
+
+def inspect(
+    target: str = typer.Argument(..., help="runN or a teacher NAME or NAME@vN."),
+    coupling: bool = typer.Option(False, "--coupling", help="Mixing weights p over training."),
+    curve: bool = typer.Option(False, "--curve", help="The learning curve (mean return over training)."),
+    plot: Path = typer.Option(None, "--plot", help="Also write the chosen view as a PNG."),
+    rows: int = typer.Option(12, "--rows", min=2, help="Table rows to show."),
+    as_json: bool = typer.Option(False, "--json", help="Everything as JSON: card and all metrics."),
+    registry: Path = registry_option(),
+) -> None:
+    from miktcli.errors import MiktError
+    from miktcli.plots import png_plot, text_plot
+    from miktcli.runs import open_run
+
+    reg = resolve_registry(registry)
+    if not _is_run(target):
+        from miktcli.cli.teacher import render_card
+        from miktcli.teachers import load_teacher
+
+        card = load_teacher(reg, target).card.model_dump(mode="json")
+        print_json(card) if as_json else render_card(card)
+        return
+    run = open_run(reg, target)
+    metrics = run.read_metrics()
+    if as_json:
+        print_json({"card": run.card.model_dump(mode="json"), "metrics": metrics})
+        return
+    if not (coupling or curve):
+        from miktcli.cli.teacher import render_card
+
+        render_card(run.card.model_dump(mode="json", exclude={"config"}))
+        err.print("Hint: --coupling for the mixing weights, --curve for the learning curve, --json for all.")
+        return
+    if coupling:
+        keys = [k for k in (metrics[0] if metrics else {}) if k.startswith("p_")]
+        if not keys:
+            raise MiktError(f"run '{run.id}' ({run.card.method}) has no mixing weights: only mikt runs do")
+        table = Table("steps", *keys, "teacher")
+        for r in _sampled(metrics, rows):
+            table.add_row(f"{r['steps']:,}", *(f"{r[k]:.3f}" for k in keys),
+                          "on" if r.get("teacher_active", 1.0) else "dropped")
+        out.print(table)
+        series = {k: [(r["steps"], r[k]) for r in metrics] for k in keys}
+        out.print(text_plot(series, y_range=(0.0, 1.0)))
+        if plot:
+            png_plot(series, plot, f"{run.id}: student mixing weights", "p (student)")
+            err.print(f"wrote {plot}")
+    if curve:
+        table = Table("steps", "mean return (last 100 ep.)", "mean length", "steps/s")
+        for r in _sampled(metrics, rows):
+            ret = "—" if r["return_mean"] is None else f"{r['return_mean']:.1f}"
+            length = "—" if r["length_mean"] is None else f"{r['length_mean']:.0f}"
+            table.add_row(f"{r['steps']:,}", ret, length, f"{r['steps_per_sec']:.0f}")
+        out.print(table)
+        series = {"return": [(r["steps"], r["return_mean"]) for r in metrics if r["return_mean"] is not None]}
+        out.print(text_plot(series))
+        if plot and not coupling:
+            png_plot(series, plot, f"{run.id}: {run.card.method} on {run.card.env}", "mean episode return")
+            err.print(f"wrote {plot}")

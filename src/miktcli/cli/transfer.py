@@ -1,0 +1,110 @@
+"""`mikt transfer`: train a student on a target env with knowledge from teachers (or a baseline)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from miktcli.cli.common import command_line, registry_option, resolve_registry, setup_torch
+from miktcli.cli.console import err, print_json
+from miktcli.cli.progress import track_training
+from miktcli.errors import MiktError
+
+HELP = """Transfer from teachers to a new body with MIKT, or run a baseline on the same engine.
+
+Examples:
+
+  mikt transfer --from centipede-four --to centipede-six --steps 200000
+
+  mikt transfer --from centipede-six --to ant --coupling-schedule constant
+
+  mikt transfer --from centipede-four --from hopper --to centipede-eight
+
+  mikt transfer --to centipede-eight --method vpg
+
+  mikt transfer --from centipede-four --to centipede-eight --method mlpp
+
+  mikt transfer --resume run7
+"""
+
+
+def transfer(
+    teacher: list[str] = typer.Option(None, "--from", help="Teacher NAME or NAME@vN; repeat for several teachers."),
+    to: str = typer.Option(None, "--to", help="Target environment."),
+    method: str = typer.Option("mikt", "--method", help="mikt | vpg (PPO from scratch) | mlpp."),
+    steps: int = typer.Option(2_000_000, "--steps", min=1, help="Environment steps (the paper: 2M)."),
+    seed: int = typer.Option(0, "--seed"),
+    mi: bool = typer.Option(True, "--mi/--no-mi", help="Train the encoder with L_MI ('w/o MI' ablation)."),
+    rl_encoder_grad: bool = typer.Option(
+        True, "--rl-encoder-grad/--no-rl-encoder-grad", help="PPO gradient into the encoder (ablation: off)."),
+    kl_coef: float = typer.Option(None, "--kl-coef", min=0, help="KL(pi||pi_old) weight (mikt 0.05, others 0)."),
+    coupling_schedule: str = typer.Option("three-phase", "--coupling-schedule", help="three-phase | constant."),
+    coupling_pi_coef: float = typer.Option(1.0, "--coupling-pi-coef", min=0),
+    coupling_vf_coef: float = typer.Option(0.1, "--coupling-vf-coef", min=0),
+    mi_coef: float = typer.Option(0.5, "--mi-coef", min=0),
+    encoder_width: list[int] = typer.Option(
+        None, "--encoder-width", help="Optional check: must equal each teacher's state dim (read from its card)."),
+    hidden: str = typer.Option(None, "--hidden", help="Optional check: must equal the teachers' hidden sizes."),
+    num_envs: int = typer.Option(1, "--num-envs", min=1),
+    eval_episodes: int = typer.Option(10, "--eval-episodes", min=1, help="Episodes for the final evaluation."),
+    resume: str = typer.Option(None, "--resume", help="Continue an interrupted transfer run."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
+    registry: Path = registry_option(),
+) -> None:
+    from miktcli.cli.teacher import parse_hidden
+    from miktcli.methods import METHODS, build_agent
+    from miktcli.mikt import MiktConfig
+    from miktcli.ppo import PPOConfig
+    from miktcli.runs import open_run
+    from miktcli.training import Job, new_run
+    from miktcli.transfer import DEFAULT_KL_COEF, finish_transfer, plan_transfer
+
+    setup_torch()
+    reg = resolve_registry(registry)
+    if resume:
+        run = open_run(reg, resume)
+        if run.card.kind != "transfer":
+            raise MiktError(f"run '{resume}' is a {run.card.kind} run; resume it with `mikt teacher train --resume`")
+        if run.card.status == "completed":
+            raise MiktError(f"run '{resume}' already completed")
+    else:
+        if to is None:
+            raise MiktError("give the target environment with --to ENV (or --resume RUN)")
+        if method not in METHODS or method == "ppo":
+            raise MiktError(f"unknown method '{method}'; known: mikt, vpg, mlpp")
+        if coupling_schedule not in ("three-phase", "constant"):
+            raise MiktError(f"unknown coupling schedule '{coupling_schedule}'; known: three-phase, constant")
+        ppo = PPOConfig(num_envs=num_envs, kl_coef=DEFAULT_KL_COEF[method] if kl_coef is None else kl_coef)
+        mikt = MiktConfig(coupling_schedule=coupling_schedule, coupling_pi_coef=coupling_pi_coef,
+                          coupling_vf_coef=coupling_vf_coef, mi=mi, mi_coef=mi_coef, rl_encoder_grad=rl_encoder_grad)
+        config, refs = plan_transfer(
+            reg, env=to, method=method, teacher_refs=list(teacher or []), ppo=ppo, mikt=mikt,
+            encoder_widths=list(encoder_width) if encoder_width else None,
+            hidden=parse_hidden(hidden) if hidden else None,
+        )
+        run = new_run(reg, kind="transfer", env=to, method=method, seed=seed, total_steps=steps, config=config,
+                      command=command_line(), teachers=refs)
+    job = Job(run, reg, build_agent)
+    sources = ", ".join(f"{t.name}@v{t.version}" for t in run.card.teachers) or "scratch"
+    err.print(f"{run.id}: {run.card.method} {sources} → {run.card.env}, {run.card.total_steps} steps, "
+              f"seed {run.card.seed} → {run.path}")
+    try:
+        for _ in track_training(job.iterations(), run.card.total_steps, job.trainer.global_step, run.id):
+            pass
+        err.print(f"{run.id}: evaluating the final student ({eval_episodes} episodes)")
+        result = finish_transfer(job, eval_episodes)
+    except KeyboardInterrupt:
+        raise MiktError(f"interrupted; {run.id} keeps its last complete checkpoint",
+                        hint=f"continue with: mikt transfer --resume {run.id}") from None
+    if as_json:
+        print_json({"run": run.id, **result})
+        return
+    without = result["eval_without_teacher"]
+    if "eval_with_teacher" in result:
+        w = result["eval_with_teacher"]
+        err.print(f"return with teacher {w['return_mean']:.1f} ± {w['return_std']:.1f}")
+    err.print(f"return without teacher {without['return_mean']:.1f} ± {without['return_std']:.1f}")
+    if "final_mixing" in result:
+        err.print("final student weights " + ", ".join(f"{k}={v:.3f}" for k, v in result["final_mixing_learned"].items()))
+    print(run.id)

@@ -1,0 +1,191 @@
+"""MIKT (Wan, Gangwani, Peng, UAI 2020): the student, its encoders, lateral mixing, q_ω and the losses.
+
+One encoder φ_k per teacher maps the (normalised) target observation to that teacher's state dimension.
+The frozen teacher networks turn φ_k(s) into hidden pre-activations, which are mixed into the student's
+at every hidden layer of both the policy and the value function (paper Eq. 2):
+
+    h^j = tanh(p^j_student · z^j_student + Σ_k p^j_k · z^j_teacher_k),   p^j = softmax(logits^j)
+
+All losses are returned together so that one backward of their sum gives every parameter group exactly
+Algorithm 1's gradient: θ, ψ ← L_PPO; φ ← L_PPO + L_MI; ω ← L_MI; p ← L_PPO + L_coupling; teachers ← none.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Literal
+
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+from torch import nn
+
+from miktcli.nets import MLP, ObsNormalizer
+from miktcli.policies import LOG_2PI, ActorCritic, GaussianActorCritic
+
+STUDENT_LOGIT_INIT = -0.1  # reference code: p_student starts at softmax([-0.1, 0.01])[0] = 0.4725
+TEACHER_LOGIT_INIT = 0.01
+
+
+class MiktConfig(BaseModel):
+    """MIKT's own options; recorded in every run card."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    coupling_schedule: Literal["constant", "three-phase"] = Field(
+        "three-phase",
+        description="constant: the paper's L_coupling throughout. three-phase (authors' code): coefficient 0 "
+        "until 45% of training, linear ramp to its value until 90%, then the teacher is dropped (p = 1)",
+    )
+    coupling_pi_coef: float = Field(1.0, ge=0)
+    coupling_vf_coef: float = Field(0.1, ge=0)
+    mi: bool = Field(True, description="train the encoder with L_MI (off: the 'w/o MI' ablation)")
+    mi_coef: float = Field(0.5, ge=0)
+    mi_log_std_min: float = Field(-5.0, description="clamp of q's log-std; constant obs dims make L_MI unbounded")
+    rl_encoder_grad: bool = Field(True, description="PPO gradient into φ (off: 'w/o RL gradients' ablation)")
+    ramp_start: float = 0.45
+    drop_teacher_at: float = 0.90
+
+
+class GaussianDecoder(nn.Module):
+    """q_ω(s | e): diagonal Gaussian, mean = MLP(e), state-independent learned log-std (clamped)."""
+
+    def __init__(self, emb_dim: int, obs_dim: int, hidden: list[int], log_std_min: float):
+        super().__init__()
+        self.mean = MLP(emb_dim, hidden, obs_dim, out_gain=1.0)
+        self.log_std = nn.Parameter(torch.zeros(obs_dim))
+        self.log_std_min = log_std_min
+
+    def neg_log_prob(self, target: torch.Tensor, emb: torch.Tensor) -> torch.Tensor:
+        """−log q(target | emb) per sample: the full log-density, summed over observation dimensions."""
+        log_std = self.log_std.clamp(min=self.log_std_min)
+        z = (target - self.mean(emb)) * torch.exp(-log_std)
+        return (0.5 * z.square() + log_std + 0.5 * LOG_2PI).sum(-1)
+
+
+class MiktActorCritic(ActorCritic):
+    def __init__(self, obs_dim: int, act_dim: int, teachers: list[GaussianActorCritic], config: MiktConfig):
+        super().__init__()
+        if not teachers:
+            raise ValueError("MIKT needs at least one teacher")
+        pi_hidden, vf_hidden = teachers[0].pi.hidden_sizes, teachers[0].vf.hidden_sizes
+        for t in teachers[1:]:
+            if t.pi.hidden_sizes != pi_hidden or t.vf.hidden_sizes != vf_hidden:
+                raise ValueError("all teachers must have the same hidden sizes")
+        self.config = config
+        self.obs_normalizer = ObsNormalizer(obs_dim)
+        self.pi = MLP(obs_dim, pi_hidden, act_dim, out_gain=0.01)
+        self.vf = MLP(obs_dim, vf_hidden, 1, out_gain=1.0)
+        self.log_std = nn.Parameter(torch.zeros(act_dim))
+        self.teachers = nn.ModuleList(teachers)
+        self.teachers.requires_grad_(False)
+        # φ_k: target obs → 64 → tanh → 64 → tanh → linear to teacher k's state dimension.
+        self.encoders = nn.ModuleList(MLP(obs_dim, [64, 64], t.pi.in_features, out_gain=1.0) for t in teachers)
+        self.decoders = nn.ModuleList(
+            GaussianDecoder(t.pi.in_features, obs_dim, [64, 64], config.mi_log_std_min) for t in teachers
+        )
+        init = [STUDENT_LOGIT_INIT] + [TEACHER_LOGIT_INIT] * len(teachers)
+        self.mix_logits_pi = nn.Parameter(torch.tensor([init] * len(pi_hidden)))
+        self.mix_logits_vf = nn.Parameter(torch.tensor([init] * len(vf_hidden)))
+        self.teacher_active = True
+        self.coupling_scale = 1.0
+
+    # --- schedule -----------------------------------------------------------------------------------
+    def set_progress(self, fraction: float) -> None:
+        cfg = self.config
+        if cfg.coupling_schedule == "constant":
+            self.coupling_scale, self.teacher_active = 1.0, True
+            return
+        ramp = (fraction - cfg.ramp_start) / (cfg.drop_teacher_at - cfg.ramp_start)
+        self.coupling_scale = min(max(ramp, 0.0), 1.0)
+        self.teacher_active = fraction < cfg.drop_teacher_at
+
+    # --- forward ------------------------------------------------------------------------------------
+    def mixing_weights(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(layers, 1 + K) softmax weights for policy and value; column 0 is the student."""
+        return torch.softmax(self.mix_logits_pi, -1), torch.softmax(self.mix_logits_vf, -1)
+
+    def embeddings(self, obs: torch.Tensor) -> list[torch.Tensor]:
+        return [enc(obs) for enc in self.encoders]
+
+    def _mixed(self, student: MLP, obs: torch.Tensor, teacher_z: list[list[torch.Tensor]] | None,
+               weights: torch.Tensor | None) -> torch.Tensor:
+        x = obs
+        for j, layer in enumerate(student.hidden):
+            z = layer(x)
+            if teacher_z is not None:
+                z = weights[j, 0] * z + sum(weights[j, k + 1] * tz[j] for k, tz in enumerate(teacher_z))
+            x = torch.tanh(z)
+        return student.head(x)
+
+    def _teacher_input(self, emb: torch.Tensor) -> torch.Tensor:
+        # "w/o RL gradients": the PPO loss may not shape φ; L_MI still reaches it through `emb`.
+        return emb if self.config.rl_encoder_grad else emb.detach()
+
+    def _policy(self, obs: torch.Tensor, embs: list[torch.Tensor] | None) -> torch.Tensor:
+        if not self.teacher_active:
+            return self.pi(obs)
+        tz = [t.pi.preactivations(self._teacher_input(e)) for t, e in zip(self.teachers, embs, strict=True)]
+        return self._mixed(self.pi, obs, tz, torch.softmax(self.mix_logits_pi, -1))
+
+    def _value(self, obs: torch.Tensor, embs: list[torch.Tensor] | None) -> torch.Tensor:
+        if not self.teacher_active:
+            return self.vf(obs).squeeze(-1)
+        tz = [t.vf.preactivations(self._teacher_input(e)) for t, e in zip(self.teachers, embs, strict=True)]
+        return self._mixed(self.vf, obs, tz, torch.softmax(self.mix_logits_vf, -1)).squeeze(-1)
+
+    def action_mean(self, obs: torch.Tensor) -> torch.Tensor:
+        return self._policy(obs, self.embeddings(obs) if self.teacher_active else None)
+
+    def value(self, obs: torch.Tensor) -> torch.Tensor:
+        return self._value(obs, self.embeddings(obs) if self.teacher_active else None)
+
+    def evaluate(self, obs: torch.Tensor):
+        if not self.teacher_active:  # the last phase: a plain MLP student, no extra losses
+            return self.pi(obs), self.vf(obs).squeeze(-1), {}
+        embs = self.embeddings(obs)
+        mean, value = self._policy(obs, embs), self._value(obs, embs)
+        cfg = self.config
+        losses = {}
+        if self.coupling_scale > 0 and (cfg.coupling_pi_coef or cfg.coupling_vf_coef):
+            p_pi, p_vf = self.mixing_weights()
+            coupling = (cfg.coupling_pi_coef * -torch.log(p_pi[:, 0]).mean()
+                        + cfg.coupling_vf_coef * -torch.log(p_vf[:, 0]).mean())
+            losses["loss_coupling"] = self.coupling_scale * coupling
+        if cfg.mi and cfg.mi_coef:
+            mi = sum(dec.neg_log_prob(obs, e).mean() for dec, e in zip(self.decoders, embs, strict=True))
+            losses["loss_mi"] = cfg.mi_coef * mi
+        return mean, value, losses
+
+    def diagnostics(self) -> dict[str, float]:
+        with torch.no_grad():
+            p_pi, p_vf = self.mixing_weights()
+        if not self.teacher_active:
+            p_pi, p_vf = torch.ones_like(p_pi[:, :1]), torch.ones_like(p_vf[:, :1])
+        out = {"teacher_active": float(self.teacher_active), "coupling_scale": self.coupling_scale}
+        for branch, p in (("pi", p_pi), ("vf", p_vf)):
+            for j in range(p.shape[0]):
+                out[f"p_{branch}_{j}"] = float(p[j, 0])
+        return out
+
+    # --- the teacher-free student -------------------------------------------------------------------
+    def student_only(self) -> GaussianActorCritic:
+        """A plain actor-critic holding the student's own weights: what the student is at p = 1."""
+        plain = GaussianActorCritic(self.obs_normalizer.mean.shape[0], self.log_std.shape[0],
+                                    self.pi.hidden_sizes, self.vf.hidden_sizes)
+        keep = ("obs_normalizer.", "pi.", "vf.", "log_std")
+        plain.load_state_dict({k: v.clone() for k, v in self.state_dict().items() if k.startswith(keep)})
+        return plain
+
+
+def initial_student_weight(num_teachers: int = 1) -> float:
+    logits = [STUDENT_LOGIT_INIT] + [TEACHER_LOGIT_INIT] * num_teachers
+    return math.exp(logits[0]) / sum(math.exp(v) for v in logits)
+
+
+def build_mikt(run, registry: Path, spec) -> MiktActorCritic:
+    from miktcli.transfer import load_run_teachers
+
+    teachers = load_run_teachers(run, registry)
+    config = MiktConfig.model_validate(run.card.config.get("mikt", {}))
+    return MiktActorCritic(spec.obs_dim, spec.act_dim, [t.policy for t in teachers], config)

@@ -1,0 +1,68 @@
+"""Curves as text (for the terminal) and as PNG files (matplotlib, headless)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+MARKERS = "●○◆◇▲△■□"
+
+
+def text_plot(series: dict[str, list[tuple[float, float]]], width: int = 64, height: int = 12,
+              y_range: tuple[float, float] | None = None) -> str:
+    """A small scatter chart of several (x, y) series; one marker per series, legend underneath."""
+    points = [(x, y) for pts in series.values() for x, y in pts if math.isfinite(y)]
+    if not points:
+        return "(no data)"
+    x0, x1 = min(p[0] for p in points), max(p[0] for p in points)
+    y0, y1 = y_range or (min(p[1] for p in points), max(p[1] for p in points))
+    if y1 == y0:
+        y0, y1 = y0 - 0.5, y1 + 0.5
+    grid = [[" "] * width for _ in range(height)]
+    for marker, pts in zip(MARKERS, series.values(), strict=False):
+        for x, y in pts:
+            if not math.isfinite(y):
+                continue
+            col = 0 if x1 == x0 else round((x - x0) / (x1 - x0) * (width - 1))
+            row = height - 1 - round((min(max(y, y0), y1) - y0) / (y1 - y0) * (height - 1))
+            grid[row][col] = marker
+    label_w = max(len(f"{y1:.3g}"), len(f"{y0:.3g}"))
+    lines = []
+    for i, row in enumerate(grid):
+        label = f"{y1:.3g}" if i == 0 else f"{y0:.3g}" if i == height - 1 else ""
+        lines.append(f"{label:>{label_w}} │{''.join(row)}")
+    lines.append(" " * label_w + " └" + "─" * width)
+    lines.append(" " * label_w + f"  {x0:,.0f}" + f"{x1:,.0f} steps".rjust(width - len(f"{x0:,.0f}")))
+    legend = "  ".join(f"{m} {name}" for m, name in zip(MARKERS, series, strict=False))
+    lines.append(" " * label_w + "  " + legend)
+    return "\n".join(lines)
+
+
+def png_plot(series: dict[str, list[tuple[float, float]]], path: Path, title: str, ylabel: str,
+             bands: dict[str, list[tuple[float, float, float]]] | None = None) -> Path:
+    """Line plot of series (and optional mean ± std bands as (x, lo, hi)) written atomically to a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.2), dpi=110)
+    for name, pts in series.items():
+        xs, ys = zip(*pts, strict=True) if pts else ((), ())
+        (line,) = ax.plot(xs, ys, label=name, linewidth=1.6)
+        if bands and name in bands and bands[name]:
+            bx, lo, hi = zip(*bands[name], strict=True)
+            ax.fill_between(bx, lo, hi, alpha=0.2, color=line.get_color())
+    ax.set_title(title)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp.png")
+    fig.savefig(tmp)
+    plt.close(fig)
+    tmp.replace(path)
+    return path
