@@ -237,7 +237,7 @@ class PPOTrainer:
         sums: dict[str, float] = {}
         n_mb = 0
         first_ratio_dev = 0.0
-        for epoch in range(cfg.epochs):
+        for _epoch in range(cfg.epochs):
             perm = torch.randperm(size, generator=self.torch_gen)
             for start in range(0, size, cfg.minibatch_size):
                 mb_inds = perm[start : start + cfg.minibatch_size]

@@ -138,7 +138,8 @@ def open_run(registry: Path, run_id: str) -> Run:
         raw = json.loads(card_path.read_text())
     except json.JSONDecodeError as err:
         raise MiktError(f"{card_path}: not valid JSON: {err}") from err
-    if isinstance(raw, dict) and isinstance(raw.get("schema_version"), int) and raw["schema_version"] > RUN_SCHEMA_VERSION:
+    found = raw.get("schema_version") if isinstance(raw, dict) else None
+    if isinstance(found, int) and found > RUN_SCHEMA_VERSION:
         raise MiktError(f"{card_path}: schema version {raw['schema_version']} is newer than this mikt understands")
     try:
         return Run(path, RunCard.model_validate(raw))

@@ -106,5 +106,6 @@ def transfer(
         err.print(f"return with teacher {w['return_mean']:.1f} ± {w['return_std']:.1f}")
     err.print(f"return without teacher {without['return_mean']:.1f} ± {without['return_std']:.1f}")
     if "final_mixing" in result:
-        err.print("final student weights " + ", ".join(f"{k}={v:.3f}" for k, v in result["final_mixing_learned"].items()))
+        weights = ", ".join(f"{k}={v:.3f}" for k, v in result["final_mixing_learned"].items())
+        err.print(f"final student weights {weights}")
     print(run.id)
