@@ -14,6 +14,10 @@ FRAME_SKIP = 5
 HEIGHT_RANGE = (0.35, 1.15)  # every torso sphere's z must stay strictly inside
 MAX_LATERAL_GAP = 0.45  # |y| gap between consecutive torsos
 MAX_RESET_TRIES = 1000
+# MuJoCo replaces a diverged (NaN/Inf) state with a reset state and counts a warning; those counters are how
+# a non-finite state is still seen after mj_step.
+_DIVERGENCE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                        mujoco.mjtWarning.mjWARN_BADQACC)
 
 
 class CentipedeEnv(gym.Env):
@@ -53,6 +57,9 @@ class CentipedeEnv(gym.Env):
         self._elapsed = 0
 
     # --- state checks -------------------------------------------------------------------------------
+    def _divergence_count(self) -> int:
+        return sum(int(self.data.warning[w].number) for w in _DIVERGENCE_WARNINGS)
+
     def is_healthy(self) -> bool:
         d = self.data
         if not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):
@@ -98,6 +105,7 @@ class CentipedeEnv(gym.Env):
         m, d = self.model, self.data
         action = np.asarray(action, dtype=np.float64)
         x_before = self.front_x()
+        diverged_before = self._divergence_count()
         d.ctrl[:] = action  # ctrllimited: MuJoCo clamps to [-1, 1]
         mujoco.mj_step(m, d, nstep=FRAME_SKIP)
         mujoco.mj_rnePostConstraint(m, d)  # cfrc_ext is only filled by this call
@@ -106,7 +114,7 @@ class CentipedeEnv(gym.Env):
         contact = self.contact_forces()
         contact_cost = self._contact_cost_weight * float(np.square(contact).sum())
         reward = forward - ctrl_cost - contact_cost + 1.0
-        terminated = not self.is_healthy()
+        terminated = self._divergence_count() > diverged_before or not self.is_healthy()
         self._elapsed += 1
         truncated = self._elapsed >= self.max_episode_steps and not terminated
         obs = np.concatenate([d.qpos[2:], d.qvel, contact.ravel()])

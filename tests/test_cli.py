@@ -1,0 +1,139 @@
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from miktcli.cli.app import app
+
+runner = CliRunner()
+
+
+def mikt(*args, code=0):
+    result = runner.invoke(app, [str(a) for a in args])
+    assert result.exit_code == code, result.output
+    return result
+
+
+def test_envs_json_parses():
+    data = json.loads(mikt("envs", "--json").stdout)
+    dims = {d["name"]: (d["obs_dim"], d["act_dim"]) for d in data}
+    assert dims["centipede-six"] == (139, 16) and dims["ant"] == (111, 8) and len(dims) == 7
+
+
+def test_envs_show_and_render(tmp_path):
+    assert "actuators (10)" in mikt("envs", "show", "centipede-four").stdout
+    out = tmp_path / "f.png"
+    mikt("envs", "render", "centipede-four", "--out", out)
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_known_errors_are_one_line_and_exit_1(tmp_path, monkeypatch):
+    r = mikt("envs", "show", "centipede-five", code=1)
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert lines[0].startswith("Error: unknown environment 'centipede-five'; known: ant")
+    assert "Traceback" not in r.output
+    (tmp_path / "broken.toml").write_text('name = "broken"\nfamily = "centipede"\nlegs = 4\nact_dim = 10\n')
+    monkeypatch.setenv("MIKT_ENVSPECS", str(tmp_path))
+    r = mikt("envs", code=1)
+    assert "broken.toml: field 'obs_dim'" in r.output
+
+
+def test_usage_errors_exit_2():
+    mikt("envs", "--bogus", code=2)
+    mikt("transfer", "--steps", "many", code=2)
+
+
+def test_bad_teacher_reference(registry):
+    assert "unknown teacher 'ghost'" in mikt("eval", "ghost", code=1).output
+    assert "unknown run 'run9'" in mikt("inspect", "run9", code=1).output
+
+
+def test_end_to_end_teacher_transfer_inspect_eval(registry, tmp_path):
+    r = mikt("teacher", "train", "centipede-four", "--steps", 2048)
+    assert r.stdout.strip() == "centipede-four@v1"
+    listed = json.loads(mikt("teacher", "list", "--json").stdout)
+    assert listed[0]["card"]["obs_dim"] == 97 and listed[0]["card"]["steps"] == 2048
+    assert "centipede-four" in mikt("teacher", "show", "centipede-four").stdout
+    r = mikt("eval", "centipede-four", "--episodes", 2, "--json")
+    assert json.loads(r.stdout)["episodes"] == 2
+    teacher_file = registry / "teachers" / "centipede-four" / "v1.safetensors"
+    before = teacher_file.read_bytes()
+
+    r = mikt("transfer", "--from", "centipede-four", "--to", "centipede-six", "--steps", 4096,
+             "--coupling-schedule", "constant", "--eval-episodes", 2, "--json")
+    result = json.loads(r.stdout)
+    assert result["run"] == "run2"
+    assert set(result["final_mixing"]) == {"p_pi_0", "p_pi_1", "p_vf_0", "p_vf_1"}
+    assert "eval_with_teacher" in result and "eval_without_teacher" in result
+    assert teacher_file.read_bytes() == before  # the teacher stayed frozen
+
+    r = mikt("inspect", "run2", "--coupling", "--plot", tmp_path / "p.png")
+    assert "p_pi_0" in r.stdout and (tmp_path / "p.png").exists()
+    assert "mean return" in mikt("inspect", "run2", "--curve").stdout
+    everything = json.loads(mikt("inspect", "run2", "--json").stdout)
+    assert everything["card"]["config"]["encoder_widths"] == [97]
+    assert len(everything["metrics"]) == 2 and "loss_mi" in everything["metrics"][0]
+    assert "student on centipede-six" in mikt("eval", "run2", "--episodes", 1).stdout
+    assert "student + teacher" in mikt("eval", "run2", "--with-teacher", "--episodes", 1).stdout
+    video = tmp_path / "v.mp4"
+    mikt("eval", "run2", "--episodes", 1, "--video", video, "--video-frames", 5)
+    assert video.stat().st_size > 0 and video.with_suffix(".png").exists()
+
+    runs = json.loads(mikt("runs", "--json").stdout)
+    assert [r["status"] for r in runs] == ["completed", "completed"]
+
+    # explicit options that contradict the card fail before any run exists
+    r = mikt("transfer", "--from", "centipede-four", "--to", "ant", "--encoder-width", 111, code=1)
+    assert "its card says state dim 97, --encoder-width asks for 111" in r.output
+    assert len(json.loads(mikt("runs", "--json").stdout)) == 2
+
+
+@pytest.mark.parametrize(
+    "args",
+    [("--method", "vpg"), ("--from", "tiny", "--method", "mlpp"), ("--from", "tiny", "--no-mi"),
+     ("--from", "tiny", "--no-rl-encoder-grad", "--kl-coef", "0"), ("--from", "tiny", "--from", "tiny")],
+    ids=["vpg", "mlpp", "no-mi", "no-rl-grad-no-kl", "two-teachers"],
+)
+def test_methods_and_ablations_run(registry, args):
+    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+    r = mikt("transfer", *args, "--to", "centipede-four", "--steps", 2048, "--eval-episodes", 1, "--json")
+    result = json.loads(r.stdout)
+    assert result["eval_without_teacher"]["episodes"] == 1
+
+
+def test_ctrl_c_keeps_the_last_checkpoint_and_resumes(registry, monkeypatch):
+    from miktcli.ppo import PPOTrainer
+
+    original = PPOTrainer.update
+    calls = {"n": 0}
+
+    def interrupted(self, batch):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return original(self, batch)
+
+    monkeypatch.setattr(PPOTrainer, "update", interrupted)
+    r = mikt("teacher", "train", "hopper", "--steps", 6144, code=1)
+    assert "interrupted; run1 keeps its last complete checkpoint" in r.output
+    card = json.loads(mikt("runs", "--json").stdout)[0]
+    assert card["status"] == "interrupted" and card["steps_done"] == 2048
+    assert not (registry / "teachers").exists()  # no half-trained teacher was published
+    assert "mean return" in mikt("inspect", "run1", "--curve").stdout
+
+    r = mikt("teacher", "train", "--resume", "run1")
+    assert r.stdout.strip() == "hopper@v1"
+    card = json.loads(mikt("runs", "--json").stdout)[0]
+    assert card["status"] == "completed" and card["steps_done"] == 6144
+    metrics = json.loads(mikt("inspect", "run1", "--json").stdout)["metrics"]
+    assert [m["iteration"] for m in metrics] == [1, 2, 3]
+
+
+def test_tampered_teacher_is_refused_by_transfer(registry):
+    mikt("teacher", "train", "hopper", "--steps", 2048)
+    path = registry / "teachers" / "hopper" / "v1.safetensors"
+    data = bytearray(path.read_bytes())
+    data[-5] ^= 0xFF  # flip bits inside the last tensor
+    path.write_bytes(bytes(data))
+    r = mikt("transfer", "--from", "hopper", "--to", "centipede-four", "--steps", 2048, code=1)
+    assert "sha256" in r.output and "Traceback" not in r.output

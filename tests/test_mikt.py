@@ -1,0 +1,140 @@
+import pytest
+import torch
+
+from miktcli.baselines import mlpp_from_teacher
+from miktcli.errors import MiktError
+from miktcli.mikt import MiktActorCritic, MiktConfig, initial_student_weight
+from miktcli.policies import GaussianActorCritic
+from miktcli.transfer import check_teachers
+
+
+def frozen_teacher(obs_dim, act_dim, hidden=(64, 64)):
+    t = GaussianActorCritic(obs_dim, act_dim, hidden, hidden)
+    t.requires_grad_(False)
+    return t
+
+
+def groups(agent):
+    return {
+        "theta": list(agent.pi.parameters()) + [agent.log_std], "psi": list(agent.vf.parameters()),
+        "phi": list(agent.encoders.parameters()), "omega": list(agent.decoders.parameters()),
+        "p": [agent.mix_logits_pi, agent.mix_logits_vf], "teacher": list(agent.teachers.parameters()),
+    }
+
+
+def reached(agent, loss):
+    agent.zero_grad(set_to_none=True)
+    loss.backward()
+    return {name: any(p.grad is not None and p.grad.abs().sum() > 0 for p in ps)
+            for name, ps in groups(agent).items()}
+
+
+@pytest.fixture()
+def agent():
+    torch.manual_seed(0)
+    return MiktActorCritic(139, 16, [frozen_teacher(97, 10)], MiktConfig(coupling_schedule="constant"))
+
+
+def ppo_like_loss(mean, value, agent):
+    return mean.square().sum() + value.square().sum() + agent.log_std.sum()
+
+
+def test_gradient_flow_per_parameter_group_as_algorithm_1(agent):
+    obs = torch.randn(32, 139)
+    mean, value, extra = agent.evaluate(obs)
+    assert set(extra) == {"loss_coupling", "loss_mi"}
+    assert reached(agent, ppo_like_loss(mean, value, agent)) == {
+        "theta": True, "psi": True, "phi": True, "omega": False, "p": True, "teacher": False}
+    _, _, extra = agent.evaluate(obs)
+    assert reached(agent, extra["loss_mi"]) == {
+        "theta": False, "psi": False, "phi": True, "omega": True, "p": False, "teacher": False}
+    _, _, extra = agent.evaluate(obs)
+    assert reached(agent, extra["loss_coupling"]) == {
+        "theta": False, "psi": False, "phi": False, "omega": False, "p": True, "teacher": False}
+
+
+def test_without_rl_gradients_the_encoder_learns_from_mi_only():
+    torch.manual_seed(0)
+    agent = MiktActorCritic(139, 16, [frozen_teacher(97, 10)], MiktConfig(rl_encoder_grad=False))
+    mean, value, extra = agent.evaluate(torch.randn(8, 139))
+    assert not reached(agent, ppo_like_loss(mean, value, agent))["phi"]
+    mean, value, extra = agent.evaluate(torch.randn(8, 139))
+    assert reached(agent, extra["loss_mi"])["phi"]
+
+
+def test_without_mi_there_is_no_mi_loss():
+    agent = MiktActorCritic(139, 16, [frozen_teacher(97, 10)], MiktConfig(mi=False))
+    assert "loss_mi" not in agent.evaluate(torch.randn(4, 139))[2]
+
+
+def test_initial_student_weight(agent):
+    assert initial_student_weight() == pytest.approx(0.4725, abs=1e-4)
+    p_pi, p_vf = agent.mixing_weights()
+    assert torch.allclose(p_pi[:, 0], torch.tensor(0.4725), atol=1e-4)
+    assert torch.allclose(p_vf[:, 0], torch.tensor(0.4725), atol=1e-4)
+
+
+def test_with_p_equal_one_the_student_is_exactly_a_plain_mlp(agent):
+    with torch.no_grad():
+        agent.mix_logits_pi[:, 0], agent.mix_logits_pi[:, 1] = 100.0, -100.0
+        agent.mix_logits_vf[:, 0], agent.mix_logits_vf[:, 1] = 100.0, -100.0
+    obs = torch.randn(16, 139)
+    plain = agent.student_only()
+    assert torch.equal(agent.action_mean(obs), plain.action_mean(obs))
+    assert torch.equal(agent.value(obs), plain.value(obs))
+
+
+def test_two_teachers_of_different_state_dims_get_encoders_of_their_widths():
+    agent = MiktActorCritic(181, 22, [frozen_teacher(97, 10), frozen_teacher(11, 3)], MiktConfig())
+    assert [e.head.out_features for e in agent.encoders] == [97, 11]
+    assert agent.mix_logits_pi.shape == (2, 3)
+    mean, value, _ = agent.evaluate(torch.randn(5, 181))
+    assert mean.shape == (5, 22) and value.shape == (5,)
+
+
+def test_a_teacher_with_the_targets_own_spaces_is_fine():
+    agent = MiktActorCritic(97, 10, [frozen_teacher(97, 10)], MiktConfig())
+    assert agent.evaluate(torch.randn(3, 97))[0].shape == (3, 10)
+
+
+def test_three_phase_schedule():
+    agent = MiktActorCritic(97, 10, [frozen_teacher(97, 10)], MiktConfig())
+    agent.set_progress(0.2)
+    assert agent.teacher_active and agent.coupling_scale == 0.0
+    assert "loss_coupling" not in agent.evaluate(torch.randn(2, 97))[2]
+    agent.set_progress(0.675)
+    assert agent.coupling_scale == pytest.approx(0.5)
+    agent.set_progress(0.95)
+    assert not agent.teacher_active
+    assert agent.evaluate(torch.randn(2, 97))[2] == {}
+    assert agent.diagnostics()["p_pi_0"] == 1.0
+
+
+class FakeTeacher:
+    def __init__(self, name, obs_dim, hidden=(64, 64)):
+        from types import SimpleNamespace
+
+        self.card = SimpleNamespace(ref=f"{name}@v1", obs_dim=obs_dim, pi_hidden=list(hidden),
+                                    vf_hidden=list(hidden))
+
+
+def test_width_and_hidden_checks_fail_before_training():
+    four, hop = FakeTeacher("centipede-four", 97), FakeTeacher("hopper", 11)
+    assert check_teachers([four, hop], [97, 11], None) == [64, 64]
+    with pytest.raises(MiktError, match="teacher 'hopper@v1': its card says state dim 11, --encoder-width asks for 12"):
+        check_teachers([four, hop], [97, 12], None)
+    with pytest.raises(MiktError, match=r"teacher 'centipede-four@v1': its card says hidden sizes \[64, 64\]"):
+        check_teachers([four], None, [32, 32])
+    with pytest.raises(MiktError, match="teacher 'small@v1': hidden sizes"):
+        check_teachers([four, FakeTeacher("small", 11, (32, 32))], None, None)
+
+
+def test_mlpp_copies_the_middle_stack():
+    teacher = frozen_teacher(97, 10)
+    student = mlpp_from_teacher(teacher, 181, 22)
+    for net, src in ((student.pi, teacher.pi), (student.vf, teacher.vf)):
+        assert torch.equal(net.hidden[1].weight, src.hidden[1].weight)
+        assert torch.equal(net.hidden[1].bias, src.hidden[1].bias)
+        assert net.hidden[0].in_features == 181
+    assert student.pi.head.out_features == 22
+    assert all(p.requires_grad for p in student.parameters())

@@ -1,0 +1,107 @@
+import numpy as np
+import pytest
+import torch
+
+from miktcli.envs import make_env
+from miktcli.envs.spec import load_spec_file
+from miktcli.envs.vector import SyncEnvs
+from miktcli.nets import ObsNormalizer
+from miktcli.policies import GaussianActorCritic
+from miktcli.ppo import PPOConfig, PPOTrainer, compute_gae
+
+
+def test_gae_against_a_hand_computed_case():
+    g, lam = 0.9, 0.8
+    rewards = np.array([[1.0], [2.0], [3.0], [4.0]])
+    values = np.array([[0.5], [1.0], [1.5], [2.0]])
+    # step 1 terminates; step 3 is cut by the time limit and bootstraps V(final obs) = 10
+    next_values = np.array([[1.0], [123.0], [2.0], [10.0]])
+    terminated = np.array([[0.0], [1.0], [0.0], [0.0]])
+    dones = np.array([[0.0], [1.0], [0.0], [1.0]])
+    adv, ret = compute_gae(rewards, values, next_values, terminated, dones, g, lam)
+    d3 = 4.0 + g * 10.0 - 2.0
+    d2 = 3.0 + g * 2.0 - 1.5
+    d1 = 2.0 - 1.0
+    d0 = 1.0 + g * 1.0 - 0.5
+    expected = [d0 + g * lam * d1, d1, d2 + g * lam * d3, d3]
+    assert adv[:, 0] == pytest.approx(expected)
+    assert ret[:, 0] == pytest.approx(np.array(expected) + values[:, 0])
+
+
+def trainer(env="hopper", steps=512, seed=0, **cfg):
+    torch.manual_seed(seed)
+    spec_env = make_env(env)
+    agent = GaussianActorCritic(spec_env.observation_space.shape[0], spec_env.action_space.shape[0])
+    config = PPOConfig(n_steps=256, minibatch_size=64, epochs=2, **cfg)
+    return PPOTrainer(agent, lambda: make_env(env), config, steps, seed)
+
+
+def test_ratio_is_one_on_the_first_minibatch_and_flat_views_hold():
+    t = trainer()
+    for m in t.run():
+        assert m["first_minibatch_ratio_dev"] == 0.0
+        assert m["steps"] <= 512
+    assert t.flat.check_views()
+
+
+def test_same_seed_same_metrics():
+    a = [m for m in trainer(seed=3).run()]
+    b = [m for m in trainer(seed=3).run()]
+    keys = ("return_mean", "loss_policy", "loss_value", "approx_kl", "episodes")
+    assert [[m[k] for k in keys] for m in a] == [[m[k] for k in keys] for m in b]
+    c = [m for m in trainer(seed=4).run()]
+    assert [m["loss_policy"] for m in a] != [m["loss_policy"] for m in c]
+
+
+def test_training_improves_hopper_quickly():
+    t = trainer(steps=8192)
+    rows = list(t.run())
+    assert rows[-1]["return_mean"] > rows[0]["return_mean"]
+
+
+def test_autoreset_keeps_final_obs_and_no_dummy_transition(tmp_path):
+    path = tmp_path / "short.toml"
+    path.write_text('name = "short"\nfamily = "centipede"\nlegs = 8\nobs_dim = 181\nact_dim = 22\n'
+                    "max_episode_steps = 5\n")
+    spec = load_spec_file(path)
+    envs = SyncEnvs([make_env(spec)], seed=2)
+    for t in range(5):
+        res = envs.step(np.zeros((1, 22), np.float32))
+    assert res.truncated[0] and not res.terminated[0]
+    assert 0 in res.final_obs and res.finished[0][1] == 5
+    assert not np.array_equal(res.final_obs[0], res.obs[0])  # the next obs is the new episode's first
+    res = envs.step(np.zeros((1, 22), np.float32))
+    assert res.rewards[0] != 0.0 and not res.final_obs  # a real transition, not a zero-reward dummy
+
+
+def test_normalizer_frozen_and_round_trip(tmp_path):
+    from safetensors.torch import load_file, save_file
+
+    norm = ObsNormalizer(3)
+    data = np.random.default_rng(0).normal(2.0, 3.0, size=(500, 3))
+    for row in data[:250]:
+        norm.update(row[None])
+    norm.update(data[250:])
+    assert norm.mean.numpy() == pytest.approx(data.mean(0))
+    assert norm.var.numpy() == pytest.approx(data.var(0))
+    save_file(dict(norm.state_dict()), tmp_path / "n.safetensors")
+    other = ObsNormalizer(3)
+    other.load_state_dict(load_file(tmp_path / "n.safetensors"))
+    x = torch.tensor(data[:4], dtype=torch.float32)
+    assert torch.equal(other(x), norm(x))
+    other.frozen = True
+    other.update(data * 100)
+    assert torch.equal(other.mean, norm.mean)
+
+
+def test_trainer_state_round_trip():
+    t = trainer(steps=512)
+    list(t.run())
+    state, progress = t.state_tensors(), t.progress_state()
+    u = trainer(steps=1024)
+    u.load_state(state, progress)
+    assert (u.iteration, u.global_step) == (t.iteration, t.global_step)
+    for k, v in u.state_tensors().items():
+        assert torch.equal(v, state[k]), k
+    assert u.flat.check_views()
+    assert len(list(u.run())) == 2  # continues to 1024 steps

@@ -1,0 +1,118 @@
+import json
+
+import pytest
+import torch
+from safetensors.torch import load as st_load
+from safetensors.torch import save as st_save
+
+from miktcli.cards import TeacherCard, now
+from miktcli.checkpoint import CARD_KEY
+from miktcli.errors import MiktError
+from miktcli.policies import GaussianActorCritic
+from miktcli.teachers import list_names, load_teacher, publish_teacher, resolve, versions
+
+
+def make_card(**kw):
+    base = dict(name="tiny", version=1, env="hopper", env_spec={"name": "hopper"}, obs_dim=11, act_dim=3,
+                pi_hidden=[8, 8], vf_hidden=[8, 8], steps=0, seed=0, final_return=None, best_return=None,
+                hyperparameters={}, packages={}, code_version="test", created=now(), tensors_sha256="")
+    base.update(kw)
+    return TeacherCard(**base)
+
+
+@pytest.fixture()
+def published(registry):
+    policy = GaussianActorCritic(11, 3, [8, 8], [8, 8])
+    policy.obs_normalizer.update(torch.randn(50, 11).double().numpy())
+    card = publish_teacher(registry, make_card(), policy)
+    return registry, policy, card
+
+
+def test_round_trip_versions_and_latest(published):
+    registry, policy, card = published
+    assert card.ref == "tiny@v1"
+    loaded = load_teacher(registry, "tiny")
+    for k, v in policy.state_dict().items():
+        assert torch.equal(loaded.policy.state_dict()[k], v)
+    assert loaded.policy.obs_normalizer.frozen
+    assert not any(p.requires_grad for p in loaded.policy.parameters())
+    card2 = publish_teacher(registry, make_card(), GaussianActorCritic(11, 3, [8, 8], [8, 8]))
+    assert card2.version == 2 and versions(registry, "tiny") == [1, 2]
+    assert resolve(registry, "tiny").name == "v2.safetensors"
+    assert resolve(registry, "tiny@latest").name == "v2.safetensors"
+    assert load_teacher(registry, "tiny@v1").card.tensors_sha256 == card.tensors_sha256
+    assert list_names(registry) == ["tiny"]
+
+
+def test_unknown_teacher_and_version(published):
+    registry, _, _ = published
+    with pytest.raises(MiktError, match="unknown teacher 'nope'.*known: tiny"):
+        load_teacher(registry, "nope")
+    with pytest.raises(MiktError, match="no version v7; versions: v1"):
+        load_teacher(registry, "tiny@v7")
+
+
+def rewrite(path, tensors=None, card=None, raw_card=None):
+    data = path.read_bytes()
+    old_tensors = st_load(data)
+    from safetensors import safe_open
+
+    with safe_open(str(path), "pt") as f:
+        meta = f.metadata()
+    tensors = old_tensors if tensors is None else tensors
+    if card is not None:
+        meta = {CARD_KEY: card.model_dump_json()}
+    if raw_card is not None:
+        meta = {CARD_KEY: raw_card}
+    path.write_bytes(st_save(tensors, metadata=meta))
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (lambda p, c: p.write_bytes(p.read_bytes()[: len(p.read_bytes()) // 2]), "not a readable safetensors"),
+        (lambda p, c: p.write_bytes(b"PK\x03\x04 definitely a zip, not safetensors"), "not a readable safetensors"),
+        (lambda p, c: rewrite(p, card=c.model_copy(update={"obs_dim": 12})), "card disagrees with tensor"),
+        (lambda p, c: rewrite(p, card=c.model_copy(update={"pi_hidden": [8]})), "card"),
+        (lambda p, c: rewrite(p, raw_card=json.dumps({**json.loads(c.model_dump_json()), "schema_version": 99})),
+         "schema version 99 is newer"),
+        (lambda p, c: rewrite(p, raw_card="{not json"), "not valid JSON"),
+        (lambda p, c: rewrite(p, tensors={k: (v + 1 if k == "log_std" else v)
+                                          for k, v in st_load(p.read_bytes()).items()}), "sha256"),
+    ],
+    ids=["truncated", "not-safetensors", "dims-vs-shapes", "layers-vs-shapes", "newer-schema", "bad-json",
+         "tampered"],
+)
+def test_bad_teacher_files_are_refused(published, damage, message):
+    registry, _, card = published
+    path = resolve(registry, "tiny")
+    damage(path, card)
+    with pytest.raises(MiktError, match=message):
+        load_teacher(registry, "tiny")
+
+
+def test_versions_are_immutable_and_writes_atomic(published, monkeypatch):
+    registry, _, _ = published
+    path = resolve(registry, "tiny@v1")
+    before = path.read_bytes()
+    import miktcli.atomic as atomic
+
+    def crash(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(atomic.os, "link", crash)
+    with pytest.raises(OSError):
+        publish_teacher(registry, make_card(), GaussianActorCritic(11, 3, [8, 8], [8, 8]))
+    assert versions(registry, "tiny") == [1]  # nothing half-written, no v2
+    assert not [p for p in path.parent.iterdir() if p.name.startswith(".")]  # no temp file left
+    assert path.read_bytes() == before
+
+
+def test_listing_reads_headers_only(published, monkeypatch):
+    registry, _, _ = published
+    import miktcli.checkpoint as checkpoint
+    from miktcli.cli.teacher import _teacher_rows
+
+    monkeypatch.setattr(checkpoint, "load", lambda *a, **k: pytest.fail("list must not load tensors"))
+    rows = _teacher_rows(registry)
+    assert rows[0]["ref"] == "tiny@v1" and rows[0]["card"]["obs_dim"] == 11
