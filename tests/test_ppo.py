@@ -65,7 +65,7 @@ def test_autoreset_keeps_final_obs_and_no_dummy_transition(tmp_path):
                     "max_episode_steps = 5\n")
     spec = load_spec_file(path)
     envs = SyncEnvs([make_env(spec)], seed=2)
-    for t in range(5):
+    for _ in range(5):
         res = envs.step(np.zeros((1, 22), np.float32))
     assert res.truncated[0] and not res.terminated[0]
     assert 0 in res.final_obs and res.finished[0][1] == 5

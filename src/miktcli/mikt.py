@@ -108,13 +108,18 @@ class MiktActorCritic(ActorCritic):
     def embeddings(self, obs: torch.Tensor) -> list[torch.Tensor]:
         return [enc(obs) for enc in self.encoders]
 
-    def _mixed(self, student: MLP, obs: torch.Tensor, teacher_z: list[list[torch.Tensor]] | None,
-               weights: torch.Tensor | None) -> torch.Tensor:
+    @staticmethod
+    def _mixed(student: MLP, obs: torch.Tensor, teacher_z: list[list[torch.Tensor]],
+               weights: torch.Tensor) -> torch.Tensor:
         x = obs
+        if len(teacher_z) == 1:
+            # p·z_s + (1 − p)·z_t as one lerp: fewer autograd nodes, and exactly z_s when p = 1.
+            p_student = weights[:, 0].unbind()
+            for j, layer in enumerate(student.hidden):
+                x = torch.tanh(torch.lerp(teacher_z[0][j], layer(x), p_student[j]))
+            return student.head(x)
         for j, layer in enumerate(student.hidden):
-            z = layer(x)
-            if teacher_z is not None:
-                z = weights[j, 0] * z + sum(weights[j, k + 1] * tz[j] for k, tz in enumerate(teacher_z))
+            z = weights[j, 0] * layer(x) + sum(weights[j, k + 1] * tz[j] for k, tz in enumerate(teacher_z))
             x = torch.tanh(z)
         return student.head(x)
 
@@ -122,35 +127,35 @@ class MiktActorCritic(ActorCritic):
         # "w/o RL gradients": the PPO loss may not shape φ; L_MI still reaches it through `emb`.
         return emb if self.config.rl_encoder_grad else emb.detach()
 
-    def _policy(self, obs: torch.Tensor, embs: list[torch.Tensor] | None) -> torch.Tensor:
-        if not self.teacher_active:
-            return self.pi(obs)
+    def _policy(self, obs: torch.Tensor, embs: list[torch.Tensor], weights: torch.Tensor) -> torch.Tensor:
         tz = [t.pi.preactivations(self._teacher_input(e)) for t, e in zip(self.teachers, embs, strict=True)]
-        return self._mixed(self.pi, obs, tz, torch.softmax(self.mix_logits_pi, -1))
+        return self._mixed(self.pi, obs, tz, weights)
 
-    def _value(self, obs: torch.Tensor, embs: list[torch.Tensor] | None) -> torch.Tensor:
-        if not self.teacher_active:
-            return self.vf(obs).squeeze(-1)
+    def _value(self, obs: torch.Tensor, embs: list[torch.Tensor], weights: torch.Tensor) -> torch.Tensor:
         tz = [t.vf.preactivations(self._teacher_input(e)) for t, e in zip(self.teachers, embs, strict=True)]
-        return self._mixed(self.vf, obs, tz, torch.softmax(self.mix_logits_vf, -1)).squeeze(-1)
+        return self._mixed(self.vf, obs, tz, weights).squeeze(-1)
 
     def action_mean(self, obs: torch.Tensor) -> torch.Tensor:
-        return self._policy(obs, self.embeddings(obs) if self.teacher_active else None)
+        if not self.teacher_active:
+            return self.pi(obs)
+        return self._policy(obs, self.embeddings(obs), torch.softmax(self.mix_logits_pi, -1))
 
     def value(self, obs: torch.Tensor) -> torch.Tensor:
-        return self._value(obs, self.embeddings(obs) if self.teacher_active else None)
+        if not self.teacher_active:
+            return self.vf(obs).squeeze(-1)
+        return self._value(obs, self.embeddings(obs), torch.softmax(self.mix_logits_vf, -1))
 
     def evaluate(self, obs: torch.Tensor):
         if not self.teacher_active:  # the last phase: a plain MLP student, no extra losses
             return self.pi(obs), self.vf(obs).squeeze(-1), {}
         embs = self.embeddings(obs)
-        mean, value = self._policy(obs, embs), self._value(obs, embs)
+        w_pi, w_vf = self.mixing_weights()
+        mean, value = self._policy(obs, embs, w_pi), self._value(obs, embs, w_vf)
         cfg = self.config
         losses = {}
         if self.coupling_scale > 0 and (cfg.coupling_pi_coef or cfg.coupling_vf_coef):
-            p_pi, p_vf = self.mixing_weights()
-            coupling = (cfg.coupling_pi_coef * -torch.log(p_pi[:, 0]).mean()
-                        + cfg.coupling_vf_coef * -torch.log(p_vf[:, 0]).mean())
+            coupling = (cfg.coupling_pi_coef * -torch.log(w_pi[:, 0]).mean()
+                        + cfg.coupling_vf_coef * -torch.log(w_vf[:, 0]).mean())
             losses["loss_coupling"] = self.coupling_scale * coupling
         if cfg.mi and cfg.mi_coef:
             mi = sum(dec.neg_log_prob(obs, e).mean() for dec, e in zip(self.decoders, embs, strict=True))

@@ -234,7 +234,8 @@ class PPOTrainer:
         b_adv, b_returns, b_values, b_means = batch["advantages"], batch["returns"], batch["values"], batch["means"]
         old_log_std = agent.log_std.detach().clone()
         size = b_obs.shape[0]
-        sums: dict[str, float] = {}
+        logged: list[torch.Tensor] = []  # per-minibatch scalars, stacked once at the end (no sync per step)
+        names: list[str] = []
         n_mb = 0
         first_ratio_dev = 0.0
         for _epoch in range(cfg.epochs):
@@ -276,16 +277,14 @@ class PPOTrainer:
                 with torch.no_grad():
                     if n_mb == 0:
                         first_ratio_dev = float((ratio - 1.0).abs().max())
-                    logs = {
-                        "loss_policy": pg_loss, "loss_value": v_loss, "grad_norm": grad_norm,
-                        "approx_kl": ((ratio - 1) - logratio).mean(),
-                        "clipfrac": ((ratio - 1.0).abs() > cfg.clip_range).float().mean(),
-                        **{k: v.detach() for k, v in extra.items()},
-                    }
-                    for k, v in logs.items():
-                        sums[k] = sums.get(k, 0.0) + float(v)
+                        names = ["loss_policy", "loss_value", "grad_norm", "approx_kl", "clipfrac", *extra]
+                    logged.append(torch.stack([
+                        pg_loss, v_loss, grad_norm, ((ratio - 1) - logratio).mean(),
+                        ((ratio - 1.0).abs() > cfg.clip_range).float().mean(), *extra.values(),
+                    ]))
                 n_mb += 1
-        metrics = {k: v / n_mb for k, v in sums.items()}
+        means = torch.stack(logged).mean(0).tolist()
+        metrics = dict(zip(names, means, strict=True))
         metrics["first_minibatch_ratio_dev"] = first_ratio_dev
         var_y = float(b_returns.var())
         metrics["explained_variance"] = float("nan") if var_y == 0 else 1 - float((b_returns - b_values).var()) / var_y

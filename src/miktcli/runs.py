@@ -21,6 +21,7 @@ from miktcli.checkpoint import read_card, read_tensors, save_with_card, tensors_
 from miktcli.errors import MiktError
 
 RUN_RE = re.compile(r"^run(\d+)$")
+RUN_TARGET_RE = re.compile(r"^(run\d+|last)$")  # what eval and inspect accept as a run
 CHECKPOINT_SCHEMA_VERSION = 1
 
 
@@ -129,6 +130,12 @@ def create_run(registry: Path, **fields: Any) -> Run:
 
 
 def open_run(registry: Path, run_id: str) -> Run:
+    """Open runN; `last` names the newest run."""
+    if run_id == "last":
+        ids = run_ids(registry)
+        if not ids:
+            raise MiktError(f"no runs in {registry} yet")
+        run_id = ids[-1]
     path = runs_dir(registry) / run_id
     card_path = path / "run.json"
     if not card_path.is_file():

@@ -50,10 +50,10 @@ def load_run_policy(registry: Path, run_id: str, with_teacher: bool) -> tuple[Ac
 
 
 def load_policy(registry: Path, target: str, with_teacher: bool = False) -> tuple[ActorCritic, str, str]:
-    from miktcli.runs import RUN_RE
+    from miktcli.runs import RUN_TARGET_RE
     from miktcli.teachers import load_teacher
 
-    if RUN_RE.match(target):
+    if RUN_TARGET_RE.match(target):
         return load_run_policy(registry, target, with_teacher)
     if with_teacher:
         raise MiktError("--with-teacher applies to runs (runN), not to teachers")

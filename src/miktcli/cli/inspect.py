@@ -25,9 +25,9 @@ Examples:
 
 
 def _is_run(target: str) -> bool:
-    from miktcli.runs import RUN_RE
+    from miktcli.runs import RUN_TARGET_RE
 
-    return bool(RUN_RE.match(target))
+    return bool(RUN_TARGET_RE.match(target))
 
 
 def _sampled(rows: list[dict], n: int) -> list[dict]:
