@@ -20,7 +20,6 @@ import warnings
 from pathlib import Path
 
 import mujoco
-import numpy as np
 import torch
 
 from miktcli.envs import load_spec, make_env

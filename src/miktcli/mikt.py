@@ -57,10 +57,14 @@ class GaussianDecoder(nn.Module):
         self.log_std_min = log_std_min
 
     def neg_log_prob(self, target: torch.Tensor, emb: torch.Tensor) -> torch.Tensor:
-        """−log q(target | emb) per sample: the full log-density, summed over observation dimensions."""
+        """−log q(target | emb) per sample, divided by the observation dimension.
+
+        The per-dimension mean keeps L_MI's scale independent of the target's size (97…181 dims): with the
+        plain sum, its gradient dwarfs the PPO gradient and the global grad-norm clip (0.5) then shrinks
+        every parameter group's step, the policy's included."""
         log_std = self.log_std.clamp(min=self.log_std_min)
         z = (target - self.mean(emb)) * torch.exp(-log_std)
-        return (0.5 * z.square() + log_std + 0.5 * LOG_2PI).sum(-1)
+        return (0.5 * z.square() + log_std + 0.5 * LOG_2PI).mean(-1)
 
 
 class MiktActorCritic(ActorCritic):

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from pydantic import ValidationError
 
 from miktcli.cards import TeacherCard, TeacherRef, now
 from miktcli.checkpoint import save_with_card
@@ -74,6 +75,26 @@ def plan_transfer(
         config["mikt"] = mikt.model_dump()
         config["encoder_widths"] = [t.card.obs_dim for t in teachers]
     return config, [teacher_ref(t) for t in teachers]
+
+
+def start_transfer(
+    registry: Path, *, to: str, method: str, teacher_refs: list[str], steps: int, seed: int, command: str,
+    kl_coef: float | None = None, num_envs: int = 1, mikt_options: dict[str, Any] | None = None,
+    encoder_widths: list[int] | None = None, hidden: list[int] | None = None,
+) -> Run:
+    """Check everything, then create the run folder of a transfer (not yet trained)."""
+    from miktcli.training import new_run
+
+    ppo = PPOConfig(num_envs=num_envs, kl_coef=DEFAULT_KL_COEF[method] if kl_coef is None else kl_coef)
+    try:
+        mikt = MiktConfig(**(mikt_options or {}))
+    except ValidationError as err:
+        first = err.errors()[0]
+        raise MiktError(f"bad MIKT option '{'.'.join(map(str, first['loc']))}': {first['msg']}") from err
+    config, refs = plan_transfer(registry, env=to, method=method, teacher_refs=teacher_refs, ppo=ppo, mikt=mikt,
+                                 encoder_widths=encoder_widths, hidden=hidden)
+    return new_run(registry, kind="transfer", env=to, method=method, seed=seed, total_steps=steps, config=config,
+                   command=command, teachers=refs)
 
 
 def load_run_teachers(run: Run, registry: Path) -> list[Teacher]:

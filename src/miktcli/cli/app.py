@@ -13,6 +13,7 @@ from miktcli.cli import envs as envs_cmd
 from miktcli.cli import eval as eval_cmd
 from miktcli.cli import inspect as inspect_cmd
 from miktcli.cli import runs as runs_cmd
+from miktcli.cli import study as study_cmd
 from miktcli.cli import teacher as teacher_cmd
 from miktcli.cli import transfer as transfer_cmd
 from miktcli.cli.console import debug_enabled, err
@@ -75,6 +76,7 @@ app.command("transfer", help=transfer_cmd.HELP, no_args_is_help=True)(transfer_c
 app.command("eval", help=eval_cmd.HELP, no_args_is_help=True)(eval_cmd.eval_command)
 app.command("inspect", help=inspect_cmd.HELP, no_args_is_help=True)(inspect_cmd.inspect)
 app.command("runs")(runs_cmd.runs)
+app.command("study", help=study_cmd.HELP, no_args_is_help=True)(study_cmd.study)
 
 
 def main() -> None:

@@ -29,6 +29,26 @@ Examples:
 """
 
 
+def train_transfer_run(run, registry: Path, eval_episodes: int) -> dict:
+    """Train a transfer run to its end with progress on stderr, then evaluate and save its student."""
+    from miktcli.methods import build_agent
+    from miktcli.training import Job
+    from miktcli.transfer import finish_transfer
+
+    job = Job(run, registry, build_agent)
+    sources = ", ".join(f"{t.name}@v{t.version}" for t in run.card.teachers) or "scratch"
+    err.print(f"{run.id}: {run.card.method} {sources} → {run.card.env}, {run.card.total_steps} steps, "
+              f"seed {run.card.seed} → {run.path}")
+    try:
+        for _ in track_training(job.iterations(), run.card.total_steps, job.trainer.global_step, run.id):
+            pass
+        err.print(f"{run.id}: evaluating the final student ({eval_episodes} episodes)")
+        return finish_transfer(job, eval_episodes)
+    except KeyboardInterrupt:
+        raise MiktError(f"interrupted; {run.id} keeps its last complete checkpoint",
+                        hint=f"continue with: mikt transfer --resume {run.id}") from None
+
+
 def transfer(
     teacher: list[str] = typer.Option(None, "--from", help="Teacher NAME or NAME@vN; repeat for several teachers."),
     to: str = typer.Option(None, "--to", help="Target environment."),
@@ -53,12 +73,9 @@ def transfer(
     registry: Path = registry_option(),
 ) -> None:
     from miktcli.cli.teacher import parse_hidden
-    from miktcli.methods import METHODS, build_agent
-    from miktcli.mikt import MiktConfig
-    from miktcli.ppo import PPOConfig
+    from miktcli.methods import METHODS
     from miktcli.runs import open_run
-    from miktcli.training import Job, new_run
-    from miktcli.transfer import DEFAULT_KL_COEF, finish_transfer, plan_transfer
+    from miktcli.transfer import start_transfer
 
     setup_torch()
     reg = resolve_registry(registry)
@@ -75,28 +92,16 @@ def transfer(
             raise MiktError(f"unknown method '{method}'; known: mikt, vpg, mlpp")
         if coupling_schedule not in ("three-phase", "constant"):
             raise MiktError(f"unknown coupling schedule '{coupling_schedule}'; known: three-phase, constant")
-        ppo = PPOConfig(num_envs=num_envs, kl_coef=DEFAULT_KL_COEF[method] if kl_coef is None else kl_coef)
-        mikt = MiktConfig(coupling_schedule=coupling_schedule, coupling_pi_coef=coupling_pi_coef,
-                          coupling_vf_coef=coupling_vf_coef, mi=mi, mi_coef=mi_coef, rl_encoder_grad=rl_encoder_grad)
-        config, refs = plan_transfer(
-            reg, env=to, method=method, teacher_refs=list(teacher or []), ppo=ppo, mikt=mikt,
+        mikt = {"coupling_schedule": coupling_schedule, "coupling_pi_coef": coupling_pi_coef,
+                "coupling_vf_coef": coupling_vf_coef, "mi": mi, "mi_coef": mi_coef,
+                "rl_encoder_grad": rl_encoder_grad}
+        run = start_transfer(
+            reg, to=to, method=method, teacher_refs=list(teacher or []), steps=steps, seed=seed,
+            command=command_line(), kl_coef=kl_coef, num_envs=num_envs, mikt_options=mikt,
             encoder_widths=list(encoder_width) if encoder_width else None,
             hidden=parse_hidden(hidden) if hidden else None,
         )
-        run = new_run(reg, kind="transfer", env=to, method=method, seed=seed, total_steps=steps, config=config,
-                      command=command_line(), teachers=refs)
-    job = Job(run, reg, build_agent)
-    sources = ", ".join(f"{t.name}@v{t.version}" for t in run.card.teachers) or "scratch"
-    err.print(f"{run.id}: {run.card.method} {sources} → {run.card.env}, {run.card.total_steps} steps, "
-              f"seed {run.card.seed} → {run.path}")
-    try:
-        for _ in track_training(job.iterations(), run.card.total_steps, job.trainer.global_step, run.id):
-            pass
-        err.print(f"{run.id}: evaluating the final student ({eval_episodes} episodes)")
-        result = finish_transfer(job, eval_episodes)
-    except KeyboardInterrupt:
-        raise MiktError(f"interrupted; {run.id} keeps its last complete checkpoint",
-                        hint=f"continue with: mikt transfer --resume {run.id}") from None
+    result = train_transfer_run(run, reg, eval_episodes)
     if as_json:
         print_json({"run": run.id, **result})
         return

@@ -1,0 +1,212 @@
+"""Studies: pairs × methods × seeds on one budget, resumable, with a Markdown table and plots.
+
+A grid file (TOML) names the pairs, methods and seeds; the study runs each cell as an ordinary transfer
+run (the same code path as `mikt transfer`), remembers which run holds which cell in `state.json`, and
+skips finished cells when started again. `report` aggregates whatever has finished.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from miktcli.atomic import write_text_atomic
+from miktcli.errors import MiktError
+from miktcli.runs import Run, open_run
+
+
+class PairSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+    teachers: list[str] = Field(alias="from", min_length=1)
+    to: str
+    label: str | None = None
+
+    @property
+    def name(self) -> str:
+        return self.label or f"{'+'.join(t.split('@')[0] for t in self.teachers)} → {self.to}"
+
+
+class MethodSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    name: str
+    method: str = Field(pattern="^(mikt|vpg|mlpp)$")
+    kl_coef: float | None = None
+    mikt: dict[str, Any] = Field(default_factory=dict)
+
+
+class Grid(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    name: str
+    steps: int = Field(gt=0)
+    seeds: list[int] = Field(min_length=1)
+    marks: list[int] = Field(default_factory=list, description="step marks of the results table")
+    eval_episodes: int = 10
+    baseline: str = Field("vpg", description="the method whose final return the others race to")
+    pairs: list[PairSpec] = Field(min_length=1)
+    methods: list[MethodSpec] = Field(min_length=1)
+
+
+def load_grid(path: Path) -> Grid:
+    try:
+        data = tomllib.loads(Path(path).read_text())
+        return Grid.model_validate(data)
+    except FileNotFoundError:
+        raise MiktError(f"grid file {path} not found") from None
+    except tomllib.TOMLDecodeError as err:
+        raise MiktError(f"{path}: not valid TOML: {err}") from err
+    except ValidationError as err:
+        first = err.errors()[0]
+        raise MiktError(f"{path}: field '{'.'.join(map(str, first['loc']))}': {first['msg']}") from err
+
+
+def cell_key(pair: PairSpec, method: MethodSpec, seed: int) -> str:
+    return f"{'+'.join(pair.teachers)}>{pair.to}|{method.name}|{seed}"
+
+
+class Study:
+    def __init__(self, grid: Grid, out_dir: Path, registry: Path):
+        self.grid, self.out_dir, self.registry = grid, Path(out_dir), Path(registry)
+        self.state_path = self.out_dir / "state.json"
+        self.cells: dict[str, str] = json.loads(self.state_path.read_text()) if self.state_path.exists() else {}
+
+    def _remember(self, key: str, run_id: str) -> None:
+        self.cells[key] = run_id
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(self.state_path, json.dumps(self.cells, indent=2, ensure_ascii=False))
+
+    def plan(self) -> list[tuple[PairSpec, MethodSpec, int]]:
+        return [(p, m, s) for p in self.grid.pairs for m in self.grid.methods for s in self.grid.seeds]
+
+    def run_of(self, key: str) -> Run | None:
+        run_id = self.cells.get(key)
+        if run_id is None:
+            return None
+        try:
+            return open_run(self.registry, run_id)
+        except MiktError:
+            return None
+
+    def execute(self, command: str, train: Callable[[Run], Any]) -> Iterator[tuple[str, Run, str]]:
+        """Run every unfinished cell; yields (cell, run, what happened). `train` trains and finishes a run."""
+        from miktcli.transfer import start_transfer
+
+        for pair, method, seed in self.plan():
+            key = cell_key(pair, method, seed)
+            run = self.run_of(key)
+            if run is not None and run.card.status == "completed":
+                yield key, run, "done"
+                continue
+            if run is None:
+                run = start_transfer(
+                    self.registry, to=pair.to, method=method.method,
+                    teacher_refs=[] if method.method == "vpg" else pair.teachers, steps=self.grid.steps,
+                    seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, mikt_options=method.mikt,
+                )
+                self._remember(key, run.id)
+                yield key, run, "start"
+            else:
+                yield key, run, "resume"
+            train(run)
+            yield key, open_run(self.registry, run.id), "finished"
+
+    # --- the report ---------------------------------------------------------------------------------
+    def _curves(self, pair: PairSpec, method: MethodSpec) -> tuple[list[Run], np.ndarray, np.ndarray]:
+        """Completed runs of a cell group and their return curves on the common iteration grid."""
+        runs, curves = [], []
+        for seed in self.grid.seeds:
+            run = self.run_of(cell_key(pair, method, seed))
+            if run is None or run.card.status != "completed":
+                continue
+            rows = run.read_metrics()
+            runs.append(run)
+            curves.append([(r["steps"], np.nan if r["return_mean"] is None else r["return_mean"]) for r in rows])
+        if not curves:
+            return [], np.zeros(0), np.zeros((0, 0))
+        length = min(len(c) for c in curves)
+        steps = np.array([s for s, _ in curves[0][:length]])
+        return runs, steps, np.array([[v for _, v in c[:length]] for c in curves])
+
+    def report(self) -> Path:
+        from miktcli.plots import png_plot
+
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        g = self.grid
+        lines = [f"# Study `{g.name}`", "",
+                 f"{g.steps:,} steps per run, seeds {g.seeds}, {g.eval_episodes} evaluation episodes per run. "
+                 "Returns are the mean training-episode return over the last 100 episodes at each mark, then "
+                 "mean ± std over seeds; *final eval* is the teacher-free student, deterministic, on fresh seeds.",
+                 ""]
+        summary: dict[str, Any] = {}
+        for pair in g.pairs:
+            data = {m.name: self._curves(pair, m) for m in g.methods}
+            base_runs, base_steps, base_curves = data.get(g.baseline, ([], None, None))
+            base_final = float(np.nanmean(base_curves[:, -1])) if len(base_runs) else None
+            marks = [m for m in g.marks if m <= g.steps] or [g.steps]
+            header = ["method", "seeds", *[f"{m:,}" for m in marks], "final eval (no teacher)",
+                      f"steps to {g.baseline} final", "final student weights p (π / V)"]
+            lines += [f"## {pair.name}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+            series, bands, weight_series = {}, {}, {}
+            summary[pair.name] = {}
+            for method in g.methods:
+                runs, steps, curves = data[method.name]
+                if not runs:
+                    lines.append(f"| {method.name} | 0 | " + " | ".join("—" for _ in header[2:]) + " |")
+                    continue
+                mean, std = np.nanmean(curves, 0), np.nanstd(curves, 0)
+                cells = []
+                for mark in marks:
+                    i = int(np.searchsorted(steps, mark, side="right")) - 1
+                    cells.append("—" if i < 0 or math.isnan(mean[i]) else f"{mean[i]:.0f} ± {std[i]:.0f}")
+                evals = [r.card.result["eval_without_teacher"]["return_mean"] for r in runs]
+                reach = "—"
+                if base_final is not None:
+                    hit = np.nonzero(mean >= base_final)[0]
+                    reach = f"{int(steps[hit[0]]):,}" if len(hit) else "not reached"
+                weights = "—"
+                mixing = [r.card.result.get("final_mixing_learned") for r in runs]
+                if all(mixing):
+                    keys = sorted(mixing[0])
+                    avg = {k: float(np.mean([m[k] for m in mixing])) for k in keys}
+                    pi = "/".join(f"{avg[k]:.2f}" for k in keys if k.startswith("p_pi"))
+                    vf = "/".join(f"{avg[k]:.2f}" for k in keys if k.startswith("p_vf"))
+                    weights = f"{pi} · {vf}"
+                    rows = [r.read_metrics() for r in runs]
+                    n = min(len(r) for r in rows)
+                    for k in keys:
+                        weight_series[f"{method.name} {k}"] = [
+                            (rows[0][i]["steps"], float(np.mean([r[i][k] for r in rows]))) for i in range(n)]
+                lines.append(f"| {method.name} | {len(runs)} | " + " | ".join(cells)
+                             + f" | {np.mean(evals):.0f} ± {np.std(evals):.0f} | {reach} | {weights} |")
+                series[method.name] = list(zip(steps.tolist(), mean.tolist(), strict=True))
+                bands[method.name] = list(zip(steps.tolist(), (mean - std).tolist(), (mean + std).tolist(),
+                                              strict=True))
+                summary[pair.name][method.name] = {
+                    "runs": [r.id for r in runs], "final_eval_mean": float(np.mean(evals)),
+                    "final_eval_std": float(np.std(evals)), "final_train_mean": float(mean[-1]),
+                    "final_train_std": float(std[-1]), "steps_to_baseline_final": reach,
+                }
+            slug = "".join(c if c.isalnum() else "-" for c in pair.name.replace(" → ", "-to-")).strip("-")
+            if series:
+                png_plot(series, self.out_dir / f"curves-{slug}.png", pair.name, "mean episode return", bands)
+                lines += ["", f"![learning curves]({f'curves-{slug}.png'})"]
+            if weight_series:
+                png_plot(weight_series, self.out_dir / f"weights-{slug}.png", f"{pair.name}: student weights",
+                         "p (student)")
+                lines += ["", f"![student weights]({f'weights-{slug}.png'})"]
+            lines.append("")
+        lines += ["## Runs", "", "| pair | method | seed | run |", "|---|---|---|---|"]
+        lines += [f"| {' | '.join(k.split('|'))} | {v} |" for k, v in self.cells.items()]
+        path = self.out_dir / "results.md"
+        write_text_atomic(path, "\n".join(lines) + "\n")
+        write_text_atomic(self.out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False))
+        return path
