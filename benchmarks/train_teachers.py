@@ -10,14 +10,15 @@ Each teacher is `mikt teacher train ENV --steps N --seed S`; a run that was inte
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-REGISTRY = ROOT / "registry"
-RESULTS = ROOT / "benchmarks" / "results" / "teachers"
+REGISTRY = Path(os.environ.get("MIKT_REGISTRY", ROOT / "registry"))
+RESULTS = Path(os.environ.get("MIKT_RESULTS", ROOT / "benchmarks" / "results")) / "teachers"
 JOBS = [  # (env, steps, seed)
     ("hopper", 1_000_000, 0),
     ("centipede-four", 2_000_000, 0),
