@@ -230,18 +230,19 @@ class PPOTrainer:
     # --- update -------------------------------------------------------------------------------------
     def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
         cfg, agent = self.config, self.agent
-        b_obs, b_actions, b_logprobs = batch["obs"], batch["actions"], batch["log_probs"]
-        b_adv, b_returns, b_values, b_means = batch["advantages"], batch["returns"], batch["values"], batch["means"]
         old_log_std = agent.log_std.detach().clone()
-        size = b_obs.shape[0]
+        size = batch["obs"].shape[0]
         logged: list[torch.Tensor] = []  # per-minibatch scalars, stacked once at the end (no sync per step)
         names: list[str] = []
         n_mb = 0
         first_ratio_dev = 0.0
         for _epoch in range(cfg.epochs):
             perm = torch.randperm(size, generator=self.torch_gen)
+            # One gather per epoch; each minibatch is then a contiguous slice (a view, no copy).
+            b_obs, b_actions, b_logprobs, b_adv, b_returns, b_values, b_means = (
+                batch[k][perm] for k in ("obs", "actions", "log_probs", "advantages", "returns", "values", "means"))
             for start in range(0, size, cfg.minibatch_size):
-                mb_inds = perm[start : start + cfg.minibatch_size]
+                mb_inds = slice(start, start + cfg.minibatch_size)
                 mean, value, extra = agent.evaluate(b_obs[mb_inds])
                 new_logprob = gaussian_log_prob(b_actions[mb_inds], mean, agent.log_std)
                 logratio = new_logprob - b_logprobs[mb_inds]
@@ -286,8 +287,9 @@ class PPOTrainer:
         means = torch.stack(logged).mean(0).tolist()
         metrics = dict(zip(names, means, strict=True))
         metrics["first_minibatch_ratio_dev"] = first_ratio_dev
-        var_y = float(b_returns.var())
-        metrics["explained_variance"] = float("nan") if var_y == 0 else 1 - float((b_returns - b_values).var()) / var_y
+        returns, values = batch["returns"], batch["values"]
+        var_y = float(returns.var())
+        metrics["explained_variance"] = float("nan") if var_y == 0 else 1 - float((returns - values).var()) / var_y
         return metrics
 
     # --- the loop -----------------------------------------------------------------------------------
