@@ -154,6 +154,17 @@ def open_run(registry: Path, run_id: str) -> Run:
         raise MiktError(f"{card_path}: invalid run card: {err}".splitlines()[0]) from err
 
 
+def open_resumable(registry: Path, run_id: str, kind: str) -> Run:
+    """A run that `--resume` may continue: of the right kind and not finished."""
+    run = open_run(registry, run_id)
+    if run.card.kind != kind:
+        command = "mikt transfer --resume" if run.card.kind == "transfer" else "mikt teacher train --resume"
+        raise MiktError(f"run '{run.id}' is a {run.card.kind} run; resume it with `{command}`")
+    if run.card.status == "completed":
+        raise MiktError(f"run '{run.id}' already completed")
+    return run
+
+
 def list_runs(registry: Path) -> list[Run]:
     runs = []
     for run_id in run_ids(registry):

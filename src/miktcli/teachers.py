@@ -96,9 +96,8 @@ class Teacher:
     policy: GaussianActorCritic
 
 
-def load_teacher(registry: Path, ref: str) -> Teacher:
-    """Load and fully verify a teacher: card, shapes and sha256. Its normaliser comes back frozen."""
-    path = resolve(registry, ref)
+def load_policy_file(path: Path) -> tuple[TeacherCard, GaussianActorCritic]:
+    """Read and fully verify a policy file (a teacher or a run's student): card, shapes and sha256."""
     card = read_teacher_card(path)
     tensors = read_tensors(path)
     check_card_against_tensors(path, card, tensors)
@@ -106,6 +105,13 @@ def load_teacher(registry: Path, ref: str) -> Teacher:
     policy = GaussianActorCritic(card.obs_dim, card.act_dim, card.pi_hidden, card.vf_hidden)
     policy.load_state_dict(tensors)
     policy.obs_normalizer.frozen = True
+    return card, policy
+
+
+def load_teacher(registry: Path, ref: str) -> Teacher:
+    """Load a verified teacher, frozen: normaliser statistics fixed, no gradients for its parameters."""
+    path = resolve(registry, ref)
+    card, policy = load_policy_file(path)
     policy.requires_grad_(False)
     policy.eval()
     return Teacher(card, path, policy)

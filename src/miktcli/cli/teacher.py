@@ -44,18 +44,14 @@ def train(
     """Train a teacher with PPO and add it to the registry as a new version."""
     from miktcli.methods import build_agent
     from miktcli.ppo import PPOConfig
-    from miktcli.runs import open_run
+    from miktcli.runs import open_resumable
     from miktcli.teachers import check_name
     from miktcli.training import Job, new_run, publish_teacher_from_job
 
     setup_torch()
     reg = resolve_registry(registry)
     if resume:
-        run = open_run(reg, resume)
-        if run.card.kind != "teacher":
-            raise MiktError(f"run '{resume}' is a {run.card.kind} run; resume it with `mikt transfer --resume`")
-        if run.card.status == "completed":
-            raise MiktError(f"run '{resume}' already completed ({run.card.result.get('teacher')})")
+        run = open_resumable(reg, resume, "teacher")
     else:
         if env is None:
             raise MiktError("give an environment name, or --resume RUN")

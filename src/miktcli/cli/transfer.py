@@ -74,17 +74,13 @@ def transfer(
 ) -> None:
     from miktcli.cli.teacher import parse_hidden
     from miktcli.methods import METHODS
-    from miktcli.runs import open_run
+    from miktcli.runs import open_resumable
     from miktcli.transfer import start_transfer
 
     setup_torch()
     reg = resolve_registry(registry)
     if resume:
-        run = open_run(reg, resume)
-        if run.card.kind != "transfer":
-            raise MiktError(f"run '{resume}' is a {run.card.kind} run; resume it with `mikt teacher train --resume`")
-        if run.card.status == "completed":
-            raise MiktError(f"run '{resume}' already completed")
+        run = open_resumable(reg, resume, "transfer")
     else:
         if to is None:
             raise MiktError("give the target environment with --to ENV (or --resume RUN)")
