@@ -19,6 +19,7 @@ from typing import Literal
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 from torch import nn
+from torch.nn import functional as F
 
 from miktcli.nets import MLP, ObsNormalizer
 from miktcli.policies import LOG_2PI, ActorCritic, GaussianActorCritic
@@ -119,13 +120,13 @@ class MiktActorCritic(ActorCritic):
         if len(teacher_z) == 1:
             # p·z_s + (1 − p)·z_t as one lerp: fewer autograd nodes, and exactly z_s when p = 1.
             p_student = weights[:, 0].unbind()
-            for j, layer in enumerate(student.hidden):
-                x = torch.tanh(torch.lerp(teacher_z[0][j], layer(x), p_student[j]))
-            return student.head(x)
-        for j, layer in enumerate(student.hidden):
-            z = weights[j, 0] * layer(x) + sum(weights[j, k + 1] * tz[j] for k, tz in enumerate(teacher_z))
+            for j, (w, b) in enumerate(student.layer_params):
+                x = torch.tanh(torch.lerp(teacher_z[0][j], F.linear(x, w, b), p_student[j]))
+            return F.linear(x, *student.head_params)
+        for j, (w, b) in enumerate(student.layer_params):
+            z = weights[j, 0] * F.linear(x, w, b) + sum(weights[j, k + 1] * tz[j] for k, tz in enumerate(teacher_z))
             x = torch.tanh(z)
-        return student.head(x)
+        return F.linear(x, *student.head_params)
 
     def _teacher_input(self, emb: torch.Tensor) -> torch.Tensor:
         # "w/o RL gradients": the PPO loss may not shape φ; L_MI still reaches it through `emb`.

@@ -10,6 +10,7 @@ import math
 import numpy as np
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 OBS_CLIP = 10.0
 NORM_EPS = 1e-8
@@ -77,6 +78,9 @@ class MLP(nn.Module):
             orthogonal_linear(a, b, math.sqrt(2.0)) for a, b in zip(sizes[:-1], sizes[1:], strict=True)
         )
         self.head = orthogonal_linear(sizes[-1], n_out, out_gain)
+        # Plain references for the hot paths: calling nn.Linear modules costs more than the matmuls here.
+        self.layer_params = [(layer.weight, layer.bias) for layer in self.hidden]
+        self.head_params = (self.head.weight, self.head.bias)
 
     @property
     def hidden_sizes(self) -> list[int]:
@@ -87,14 +91,14 @@ class MLP(nn.Module):
         return self.hidden[0].in_features
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        for layer in self.hidden:
-            x = torch.tanh(layer(x))
-        return self.head(x)
+        for weight, bias in self.layer_params:
+            x = torch.tanh(F.linear(x, weight, bias))
+        return F.linear(x, *self.head_params)
 
     def preactivations(self, x: torch.Tensor) -> list[torch.Tensor]:
         zs = []
-        for layer in self.hidden:
-            z = layer(x)
+        for weight, bias in self.layer_params:
+            z = F.linear(x, weight, bias)
             zs.append(z)
             x = torch.tanh(z)
         return zs
