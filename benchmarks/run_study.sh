@@ -19,3 +19,4 @@ for grid in four-to-eight six-to-ant ablations-four-to-eight; do
   mikt study "$ROOT/benchmarks/grids/$grid.toml" --out "$RESULTS/$grid"
 done
 python "$ROOT/benchmarks/train_teachers.py" ant
+mikt study "$ROOT/benchmarks/grids/similarity-to-eight.toml" --out "$RESULTS/similarity-to-eight"
