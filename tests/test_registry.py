@@ -116,3 +116,27 @@ def test_listing_reads_headers_only(published, monkeypatch):
     monkeypatch.setattr(checkpoint, "load", lambda *a, **k: pytest.fail("list must not load tensors"))
     rows = _teacher_rows(registry)
     assert rows[0]["ref"] == "tiny@v1" and rows[0]["card"]["obs_dim"] == 11
+
+
+def test_a_signal_during_an_atomic_write_waits_for_the_write(tmp_path):
+    import os
+    import signal
+
+    from miktcli.atomic import write_bytes_atomic
+
+    target = tmp_path / "f.bin"
+    original = os.fsync
+
+    def fsync_then_ctrl_c(fd):
+        original(fd)
+        os.kill(os.getpid(), signal.SIGINT)  # arrives mid-write, before the rename
+
+    import miktcli.atomic as atomic
+
+    atomic.os.fsync = fsync_then_ctrl_c
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            write_bytes_atomic(target, b"complete")
+    finally:
+        atomic.os.fsync = original
+    assert target.read_bytes() == b"complete"  # the write finished first, then Ctrl-C was delivered

@@ -12,18 +12,24 @@ from pathlib import Path
 
 @contextlib.contextmanager
 def deferred_interrupt() -> Iterator[None]:
-    """Hold a Ctrl-C that arrives inside the block until the block is done, then raise it."""
+    """Hold a Ctrl-C (or SIGTERM) that arrives inside the block until the block is done, then raise it."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     received: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    signals = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.signal(s, lambda signum, frame: received.append(signum)) for s in signals}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
-        if received:
-            raise KeyboardInterrupt
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        for s in dict.fromkeys(received):  # now deliver what was held, as it would have been
+            handler = previous[s]
+            if callable(handler):
+                handler(s, None)  # Python's Ctrl-C handler (and the CLI's SIGTERM one) raise KeyboardInterrupt
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(s)
 
 
 def _tmp_path(path: Path) -> Path:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import sys
 
 import typer
@@ -79,7 +80,12 @@ app.command("runs")(runs_cmd.runs)
 app.command("study", help=study_cmd.HELP, no_args_is_help=True)(study_cmd.study)
 
 
+def _stop_on_sigterm(signum, frame) -> None:
+    raise KeyboardInterrupt  # same clean stop as Ctrl-C: the run is marked interrupted, checkpoints stay whole
+
+
 def main() -> None:
+    signal.signal(signal.SIGTERM, _stop_on_sigterm)
     try:
         app()
     except MiktError as error:  # raised while building the command tree, outside MiktGroup.invoke
