@@ -137,3 +137,12 @@ def test_tampered_teacher_is_refused_by_transfer(registry):
     path.write_bytes(bytes(data))
     r = mikt("transfer", "--from", "hopper", "--to", "centipede-four", "--steps", 2048, code=1)
     assert "sha256" in r.output and "Traceback" not in r.output
+
+
+def test_checkpoints_carry_the_run_card(registry):
+    from miktcli.runs import open_run
+
+    mikt("transfer", "--to", "hopper", "--method", "vpg", "--steps", 2048, "--eval-episodes", 1)
+    ckpt, tensors = open_run(registry, "run1").load_checkpoint()
+    assert ckpt.run.run_id == "run1" and ckpt.run.config["ppo"]["n_steps"] == 2048
+    assert "agent.obs_normalizer.mean" in tensors and "optim.exp_avg" in tensors

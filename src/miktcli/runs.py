@@ -34,6 +34,7 @@ class CheckpointCard(BaseModel):
     steps: int
     progress: dict[str, Any]
     tensors_sha256: str
+    run: RunCard | None = None  # the run's card when the checkpoint was written: the file describes itself
 
 
 def runs_dir(registry: Path) -> Path:
@@ -96,7 +97,7 @@ class Run:
     def save_checkpoint(self, tensors: dict[str, torch.Tensor], iteration: int, steps: int,
                         progress: dict[str, Any], path: Path | None = None) -> None:
         card = CheckpointCard(run_id=self.id, iteration=iteration, steps=steps, progress=progress,
-                              tensors_sha256=tensors_sha256(tensors))
+                              tensors_sha256=tensors_sha256(tensors), run=self.card)
         save_with_card(path or self.checkpoint_path, tensors, card)
 
     def load_checkpoint(self, path: Path | None = None) -> tuple[CheckpointCard, dict[str, torch.Tensor]]:
