@@ -73,6 +73,11 @@ def cell_key(pair: PairSpec, method: MethodSpec, seed: int) -> str:
     return f"{'+'.join(pair.teachers)}>{pair.to}|{method.name}|{seed}"
 
 
+def first_reach(steps: np.ndarray, curve: np.ndarray, level: float) -> str:
+    hit = np.nonzero(curve >= level)[0]
+    return f"{int(steps[hit[0]]):,}" if len(hit) else "not reached"
+
+
 class Study:
     def __init__(self, grid: Grid, out_dir: Path, registry: Path):
         self.grid, self.out_dir, self.registry = grid, Path(out_dir), Path(registry)
@@ -144,7 +149,8 @@ class Study:
         lines = [f"# Study `{g.name}`", "",
                  f"{g.steps:,} steps per run, seeds {g.seeds}, {g.eval_episodes} evaluation episodes per run. "
                  "Returns are the mean training-episode return over the last 100 episodes at each mark, then "
-                 "mean ± std over seeds; *final eval* is the teacher-free student, deterministic, on fresh seeds.",
+                 "mean ± std over seeds; *mean over training* averages that curve over the whole run (area under "
+                 "the curve per step); *final eval* is the teacher-free student, deterministic, on fresh seeds.",
                  ""]
         summary: dict[str, Any] = {}
         for pair in g.pairs:
@@ -152,8 +158,9 @@ class Study:
             base_runs, base_steps, base_curves = data.get(g.baseline, ([], None, None))
             base_final = float(np.nanmean(base_curves[:, -1])) if len(base_runs) else None
             marks = [m for m in g.marks if m <= g.steps] or [g.steps]
-            header = ["method", "seeds", *[f"{m:,}" for m in marks], "final eval (no teacher)",
-                      f"steps to {g.baseline} final", "final student weights p (π / V)"]
+            header = ["method", "seeds", *[f"{m:,}" for m in marks], "mean over training",
+                      "final eval (no teacher)", f"steps to {g.baseline} final", f"steps to ¾ of {g.baseline} final",
+                      "final student weights p (π / V)"]
             lines += [f"## {pair.name}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
             series, bands, weight_series = {}, {}, {}
             summary[pair.name] = {}
@@ -168,10 +175,9 @@ class Study:
                     i = int(np.searchsorted(steps, mark, side="right")) - 1
                     cells.append("—" if i < 0 or math.isnan(mean[i]) else f"{mean[i]:.0f} ± {std[i]:.0f}")
                 evals = [r.card.result["eval_without_teacher"]["return_mean"] for r in runs]
-                reach = "—"
+                reach = reach_75 = "—"
                 if base_final is not None:
-                    hit = np.nonzero(mean >= base_final)[0]
-                    reach = f"{int(steps[hit[0]]):,}" if len(hit) else "not reached"
+                    reach, reach_75 = (first_reach(steps, mean, level) for level in (base_final, 0.75 * base_final))
                 weights = "—"
                 mixing = [r.card.result.get("final_mixing_learned") for r in runs]
                 if all(mixing):
@@ -185,15 +191,19 @@ class Study:
                     for k in keys:
                         weight_series[f"{method.name} {k}"] = [
                             (rows[0][i]["steps"], float(np.mean([r[i][k] for r in rows]))) for i in range(n)]
+                # Area under the curve per step: how much return the whole run collected, jump-start included.
+                auc = np.nanmean(curves, axis=1)
                 lines.append(f"| {method.name} | {len(runs)} | " + " | ".join(cells)
-                             + f" | {np.mean(evals):.0f} ± {np.std(evals):.0f} | {reach} | {weights} |")
+                             + f" | {np.mean(auc):.0f} ± {np.std(auc):.0f}"
+                             + f" | {np.mean(evals):.0f} ± {np.std(evals):.0f} | {reach} | {reach_75} | {weights} |")
                 series[method.name] = list(zip(steps.tolist(), mean.tolist(), strict=True))
                 bands[method.name] = list(zip(steps.tolist(), (mean - std).tolist(), (mean + std).tolist(),
                                               strict=True))
                 summary[pair.name][method.name] = {
                     "runs": [r.id for r in runs], "final_eval_mean": float(np.mean(evals)),
                     "final_eval_std": float(np.std(evals)), "final_train_mean": float(mean[-1]),
-                    "final_train_std": float(std[-1]), "steps_to_baseline_final": reach,
+                    "final_train_std": float(std[-1]), "mean_over_training": float(np.mean(auc)),
+                    "steps_to_baseline_final": reach, "steps_to_three_quarters_of_baseline_final": reach_75,
                 }
             slug = "".join(c if c.isalnum() else "-" for c in pair.name.replace(" → ", "-to-")).strip("-")
             if series:
