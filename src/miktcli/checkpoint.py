@@ -33,8 +33,8 @@ def tensors_sha256(tensors: dict[str, torch.Tensor]) -> str:
 
 
 def save_with_card(path: Path, tensors: dict[str, torch.Tensor], card: BaseModel, exclusive: bool = False) -> None:
-    # safetensors needs contiguous tensors that share no memory (our params are views of one flat buffer).
-    tensors = {k: v.detach().clone().contiguous() for k, v in tensors.items()}
+    """`tensors` must be contiguous and share no memory (our parameters are views of one flat buffer): every
+    caller already cloned them to hash them, so they are not copied again here."""
     data = save(tensors, metadata={CARD_KEY: card.model_dump_json()})
     write_bytes_atomic(path, data, exclusive=exclusive)
 

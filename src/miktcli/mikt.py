@@ -184,7 +184,7 @@ class MiktActorCritic(ActorCritic):
         plain = GaussianActorCritic(self.obs_normalizer.mean.shape[0], self.log_std.shape[0],
                                     self.pi.hidden_sizes, self.vf.hidden_sizes)
         keep = ("obs_normalizer.", "pi.", "vf.", "log_std")
-        plain.load_state_dict({k: v.clone() for k, v in self.state_dict().items() if k.startswith(keep)})
+        plain.load_state_dict({k: v for k, v in self.state_dict().items() if k.startswith(keep)})  # copies
         return plain
 
 
