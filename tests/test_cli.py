@@ -89,16 +89,35 @@ def test_end_to_end_teacher_transfer_inspect_eval(registry, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "args",
-    [("--method", "vpg"), ("--from", "tiny", "--method", "mlpp"), ("--from", "tiny", "--no-mi"),
-     ("--from", "tiny", "--no-rl-encoder-grad", "--kl-coef", "0"), ("--from", "tiny", "--from", "tiny")],
-    ids=["vpg", "mlpp", "no-mi", "no-rl-grad-no-kl", "two-teachers"],
+    "args,card,metrics_present,metrics_absent",
+    [
+        (("--method", "vpg"), {"method": "vpg", "kl_coef": 0.0, "mikt": None}, set(), {"loss_mi", "loss_kl"}),
+        (("--from", "tiny", "--method", "mlpp"), {"method": "mlpp", "kl_coef": 0.0, "mikt": None}, set(),
+         {"loss_mi", "loss_kl"}),
+        (("--from", "tiny", "--no-mi"), {"method": "mikt", "kl_coef": 0.05, "mi": False}, {"loss_kl"},
+         {"loss_mi"}),
+        (("--from", "tiny", "--no-rl-encoder-grad", "--kl-coef", "0"),
+         {"method": "mikt", "kl_coef": 0.0, "rl_encoder_grad": False}, {"loss_mi"}, {"loss_kl"}),
+        (("--from", "tiny", "--lateral", "projection"), {"method": "mikt", "lateral": "projection"},
+         {"loss_mi", "loss_kl"}, set()),
+        (("--from", "tiny", "--from", "tiny"), {"method": "mikt", "teachers": 2}, {"p_pi_0", "loss_mi"}, set()),
+    ],
+    ids=["vpg", "mlpp", "no-mi", "no-rl-grad-no-kl", "projection", "two-teachers"],
 )
-def test_methods_and_ablations_run(registry, args):
+def test_methods_and_ablations_are_recorded_and_change_what_is_trained(
+        registry, args, card, metrics_present, metrics_absent):
     mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
     r = mikt("transfer", *args, "--to", "centipede-four", "--steps", 2048, "--eval-episodes", 1, "--json")
     result = json.loads(r.stdout)
     assert result["eval_without_teacher"]["episodes"] == 1
+    everything = json.loads(mikt("inspect", result["run"], "--json").stdout)
+    config, metrics = everything["card"]["config"], everything["metrics"][0]
+    recorded = {"method": everything["card"]["method"], "kl_coef": config["ppo"]["kl_coef"],
+                "mikt": config.get("mikt"), "teachers": len(everything["card"]["teachers"]),
+                **(config.get("mikt") or {})}
+    assert {k: recorded[k] for k in card} == card
+    assert metrics_present <= set(metrics) and not metrics_absent & set(metrics)
+    assert config["ppo"]["clip_actions_for_env"] is False
 
 
 def test_ctrl_c_keeps_the_last_checkpoint_and_resumes(registry, monkeypatch):

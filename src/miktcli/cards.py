@@ -61,6 +61,9 @@ class TeacherCard(BaseModel):
     pi_hidden: list[int]
     vf_hidden: list[int]
     activation: Literal["tanh"] = "tanh"
+    # How actions reached the env in training, and so how to evaluate the policy. Cards written by mikt 0.1
+    # lack the field: those policies were trained with clipped actions.
+    clip_actions_for_env: bool = True
     steps: int
     seed: int
     final_return: float | None

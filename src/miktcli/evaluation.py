@@ -26,9 +26,12 @@ class EvalResult:
 
 def evaluate(
     act: Callable[[torch.Tensor], torch.Tensor], env: gym.Env, episodes: int, seed: int,
-    capture_episodes: int = 0, frame_every: int = 1,
+    capture_episodes: int = 0, frame_every: int = 1, clip_actions: bool = False,
 ) -> EvalResult:
-    """`act` maps a raw observation batch (1, obs_dim) to actions; frames come from the first episodes."""
+    """`act` maps a raw observation batch (1, obs_dim) to actions; frames come from the first episodes.
+
+    Actions reach the env as the policy gives them unless `clip_actions` (the authors' ppo2 passed raw actions:
+    MuJoCo clamps `ctrl` to the actuator range itself, and the control cost is computed on the raw action)."""
     result = EvalResult([], [])
     low, high = env.action_space.low, env.action_space.high
     for ep in range(episodes):
@@ -39,7 +42,7 @@ def evaluate(
                 result.frames.append(env.render())
             with torch.no_grad():
                 action = act(torch.as_tensor(obs, dtype=torch.float32)[None])[0].numpy()
-            obs, reward, terminated, truncated, _ = env.step(np.clip(action, low, high))
+            obs, reward, terminated, truncated, _ = env.step(np.clip(action, low, high) if clip_actions else action)
             total += float(reward)
             length += 1
             done = terminated or truncated

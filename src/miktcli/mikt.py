@@ -26,6 +26,15 @@ from miktcli.policies import LOG_2PI, ActorCritic, GaussianActorCritic
 
 STUDENT_LOGIT_INIT = -0.1  # reference code: p_student starts at softmax([-0.1, 0.01])[0] = 0.4725
 TEACHER_LOGIT_INIT = 0.01
+AUTHORS_OUTPUT_GAIN = math.sqrt(2.0)  # the authors' init gain for the output layers of φ and q_ω
+
+
+def lateral_projections(hidden: list[int]) -> nn.ModuleList:
+    """One learnable square matrix per hidden layer (the authors' U: no bias, Glorot-uniform)."""
+    layers = nn.ModuleList(nn.Linear(h, h, bias=False) for h in hidden)
+    for layer in layers:
+        nn.init.xavier_uniform_(layer.weight)
+    return layers
 
 
 class MiktConfig(BaseModel):
@@ -46,6 +55,11 @@ class MiktConfig(BaseModel):
     rl_encoder_grad: bool = Field(True, description="PPO gradient into φ (off: 'w/o RL gradients' ablation)")
     ramp_start: float = 0.45
     drop_teacher_at: float = 0.90
+    lateral: Literal["identity", "projection"] = Field(
+        "identity",
+        description="identity (the paper: no learnable matrix transforms the teacher representation); "
+        "projection (the authors' code): each teacher pre-activation times a learnable square matrix U, no "
+        "bias, Glorot-uniform init, before mixing")
 
 
 class GaussianDecoder(nn.Module):
@@ -53,16 +67,16 @@ class GaussianDecoder(nn.Module):
 
     def __init__(self, emb_dim: int, obs_dim: int, hidden: list[int], log_std_min: float):
         super().__init__()
-        self.mean = MLP(emb_dim, hidden, obs_dim, out_gain=1.0)
+        self.mean = MLP(emb_dim, hidden, obs_dim, out_gain=AUTHORS_OUTPUT_GAIN)
         self.log_std = nn.Parameter(torch.zeros(obs_dim))
         self.log_std_min = log_std_min
 
     def neg_log_prob(self, target: torch.Tensor, emb: torch.Tensor) -> torch.Tensor:
-        """−log q(target | emb) per sample, divided by the observation dimension.
+        """−log q(target | emb) per sample, averaged over the observation dimensions.
 
-        The per-dimension mean keeps L_MI's scale independent of the target's size (97…181 dims): with the
-        plain sum, its gradient dwarfs the PPO gradient and the global grad-norm clip (0.5) then shrinks
-        every parameter group's step, the policy's included."""
+        The mean over dimensions (and, in the caller, over the batch) is the authors' own choice (their
+        `reduce_mean`), not a departure; it also keeps L_MI's scale independent of the target's size (97…181
+        dims). The clamp of the log-std is ours: constant observation entries otherwise drive it to −∞."""
         log_std = self.log_std.clamp(min=self.log_std_min)
         z = (target - self.mean(emb)) * torch.exp(-log_std)
         return (0.5 * z.square() + log_std + 0.5 * LOG_2PI).mean(-1)
@@ -85,13 +99,19 @@ class MiktActorCritic(ActorCritic):
         self.teachers = nn.ModuleList(teachers)
         self.teachers.requires_grad_(False)
         # φ_k: target obs → 64 → tanh → 64 → tanh → linear to teacher k's state dimension.
-        self.encoders = nn.ModuleList(MLP(obs_dim, [64, 64], t.pi.in_features, out_gain=1.0) for t in teachers)
+        self.encoders = nn.ModuleList(
+            MLP(obs_dim, [64, 64], t.pi.in_features, out_gain=AUTHORS_OUTPUT_GAIN) for t in teachers)
         self.decoders = nn.ModuleList(
             GaussianDecoder(t.pi.in_features, obs_dim, [64, 64], config.mi_log_std_min) for t in teachers
         )
         init = [STUDENT_LOGIT_INIT] + [TEACHER_LOGIT_INIT] * len(teachers)
         self.mix_logits_pi = nn.Parameter(torch.tensor([init] * len(pi_hidden)))
         self.mix_logits_vf = nn.Parameter(torch.tensor([init] * len(vf_hidden)))
+        if config.lateral == "projection":
+            self.lateral_pi = nn.ModuleList(lateral_projections(pi_hidden) for _ in teachers)
+            self.lateral_vf = nn.ModuleList(lateral_projections(vf_hidden) for _ in teachers)
+        else:
+            self.lateral_pi = self.lateral_vf = None
         self.teacher_active = True
         self.coupling_scale = 1.0
 
@@ -132,12 +152,21 @@ class MiktActorCritic(ActorCritic):
         # "w/o RL gradients": the PPO loss may not shape φ; L_MI still reaches it through `emb`.
         return emb if self.config.rl_encoder_grad else emb.detach()
 
+    def _teacher_z(self, nets: list[MLP], embs: list[torch.Tensor],
+                   lateral: nn.ModuleList | None) -> list[list[torch.Tensor]]:
+        """Each teacher's hidden pre-activations on its embedding, projected by U where the option asks."""
+        tz = [net.preactivations(self._teacher_input(e)) for net, e in zip(nets, embs, strict=True)]
+        if lateral is None:
+            return tz
+        return [[F.linear(z, u.weight) for z, u in zip(zs, us, strict=True)] for zs, us in zip(tz, lateral,
+                                                                                                 strict=True)]
+
     def _policy(self, obs: torch.Tensor, embs: list[torch.Tensor], weights: torch.Tensor) -> torch.Tensor:
-        tz = [t.pi.preactivations(self._teacher_input(e)) for t, e in zip(self.teachers, embs, strict=True)]
+        tz = self._teacher_z([t.pi for t in self.teachers], embs, self.lateral_pi)
         return self._mixed(self.pi, obs, tz, weights)
 
     def _value(self, obs: torch.Tensor, embs: list[torch.Tensor], weights: torch.Tensor) -> torch.Tensor:
-        tz = [t.vf.preactivations(self._teacher_input(e)) for t, e in zip(self.teachers, embs, strict=True)]
+        tz = self._teacher_z([t.vf for t in self.teachers], embs, self.lateral_vf)
         return self._mixed(self.vf, obs, tz, weights).squeeze(-1)
 
     def action_mean(self, obs: torch.Tensor) -> torch.Tensor:

@@ -12,13 +12,14 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, NamedTuple
 
 import gymnasium as gym
 import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
+from miktcli.envs.mujoco_warnings import mujoco_warning_count
 from miktcli.envs.vector import SyncEnvs
 from miktcli.flatparams import FlatParameters
 from miktcli.nets import update_moments
@@ -43,13 +44,19 @@ class PPOConfig(BaseModel):
     ent_coef: float = 0.0
     vf_coef: float = 0.5
     max_grad_norm: float = 0.5
-    clip_value_loss: bool = Field(True, description="ppo2-style clipped value loss, same range as the policy")
+    clip_value_loss: bool = Field(True, description="clip the value prediction's change, same range as the policy")
+    value_loss: Literal["ppo2", "sb3"] = Field(
+        "ppo2", description="ppo2 (the authors'): 0.5·max(unclipped², clipped²); sb3: the clipped prediction's "
+        "squared error alone, no 0.5 (both then weighted by vf_coef)")
     normalize_advantage: bool = Field(True, description="per minibatch")
     obs_normalization: bool = Field(True, description="running mean/std, updated every step, clip ±10")
     reward_scaling: bool = Field(True, description="divide by running std of the discounted return")
     reward_clip: float = 10.0
     kl_coef: float = Field(0.0, ge=0, description="weight of KL(pi || pi_old) added to the loss")
     bootstrap_truncation: bool = Field(True, description="time-limit ends bootstrap V(final obs)")
+    clip_actions_for_env: bool = Field(
+        False, description="clip actions to the action space before env.step; off (the authors' ppo2): the raw "
+        "Gaussian sample reaches the env, MuJoCo clamps ctrl itself and the control cost sees the raw action")
     autoreset: str = Field("same-step", description="envs reset on the ending step; no dummy transitions")
     log_std_init: float = 0.0
     init: str = "orthogonal: gain sqrt(2) hidden, 0.01 policy head, 1.0 value head"
@@ -57,6 +64,26 @@ class PPOConfig(BaseModel):
     @property
     def batch_size(self) -> int:
         return self.n_steps * self.num_envs
+
+    @classmethod
+    def from_record(cls, record: dict[str, Any]) -> PPOConfig:
+        """A config read back from a card or run. Records written before `clip_actions_for_env` existed
+        (mikt 0.1) clipped actions for the env, so a missing field means True: resuming or evaluating them
+        keeps the reward they were trained on."""
+        return cls.model_validate({"clip_actions_for_env": True, **record})
+
+
+class Minibatch(NamedTuple):
+    obs: torch.Tensor
+    actions: torch.Tensor
+    log_probs: torch.Tensor  # under the policy that collected the rollout
+    means: torch.Tensor  # that policy's action means (for KL(pi || pi_old))
+    advantages: torch.Tensor
+    returns: torch.Tensor
+    values: torch.Tensor  # that policy's value predictions (for value clipping)
+
+    def take(self, index: torch.Tensor | slice) -> Minibatch:
+        return Minibatch(*(t[index] for t in self))
 
 
 class RewardScaler:
@@ -132,7 +159,8 @@ class PPOTrainer:
         self.num_iterations = max(1, total_steps // config.batch_size)
         self.iteration = 0
         self.global_step = 0
-        self.envs = SyncEnvs([make_env() for _ in range(config.num_envs)], seed)
+        self.envs = SyncEnvs([make_env() for _ in range(config.num_envs)], seed,
+                             clip_actions=config.clip_actions_for_env)
         self.rng = np.random.default_rng(seed)
         self.torch_gen = torch.Generator().manual_seed(seed)
         self.reward_scaler = RewardScaler(config.num_envs, config.gamma, config.reward_clip)
@@ -165,6 +193,7 @@ class PPOTrainer:
         t_env = t_inf = 0.0
         finished: list[tuple[float, int]] = []
         obs_raw = envs.obs
+        warnings_before = mujoco_warning_count()
         with torch.no_grad():
             for t in range(T):
                 t0 = time.perf_counter()
@@ -192,12 +221,14 @@ class PPOTrainer:
         stats = {
             "time_env": t_env, "time_inference": t_inf,
             "episodes_finished": len(finished),
+            # A diverging simulation (MuJoCo's "unstable" warnings): counted here instead of a log file.
+            "sim_warnings": mujoco_warning_count() - warnings_before,
             "episode_return_iter": float(np.mean([r for r, _ in finished])) if finished else float("nan"),
         }
         return ro, stats
 
     # --- advantages ---------------------------------------------------------------------------------
-    def _values_and_targets(self, ro: Rollout) -> dict[str, torch.Tensor]:
+    def _values_and_targets(self, ro: Rollout) -> Minibatch:
         cfg, agent = self.config, self.agent
         T, N = ro.rewards.shape
         obs = torch.from_numpy(ro.obs.reshape(T * N, -1))
@@ -220,74 +251,81 @@ class PPOTrainer:
         advantages, returns = compute_gae(
             ro.rewards, values, next_values, ro.terminated, ro.dones, cfg.gamma, cfg.gae_lambda
         )
-        return {
-            "obs": obs, "actions": actions, "log_probs": log_probs, "means": mean,
-            "advantages": torch.from_numpy(advantages.reshape(-1).astype(np.float32)),
-            "returns": torch.from_numpy(returns.reshape(-1).astype(np.float32)),
-            "values": torch.from_numpy(values.reshape(-1).astype(np.float32)),
-        }
+        return Minibatch(
+            obs=obs, actions=actions, log_probs=log_probs, means=mean,
+            advantages=torch.from_numpy(advantages.reshape(-1).astype(np.float32)),
+            returns=torch.from_numpy(returns.reshape(-1).astype(np.float32)),
+            values=torch.from_numpy(values.reshape(-1).astype(np.float32)),
+        )
 
     # --- update -------------------------------------------------------------------------------------
-    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+    def loss(self, mb: Minibatch, old_log_std: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """The minibatch loss and what to log. Every weighted term is in `terms` once and the loss is their
+        sum, so no term can be counted twice (the KL term once was); tests check each term's gradient."""
+        cfg, agent = self.config, self.agent
+        mean, value, extra = agent.evaluate(mb.obs)
+        new_logprob = gaussian_log_prob(mb.actions, mean, agent.log_std)
+        logratio = new_logprob - mb.log_probs
+        ratio = logratio.exp()
+        mb_adv = mb.advantages
+        if cfg.normalize_advantage and mb_adv.numel() > 1:
+            mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
+        pg_loss = torch.max(-mb_adv * ratio, -mb_adv * ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range)).mean()
+        v_error = (value - mb.returns).square()
+        if cfg.clip_value_loss:
+            v_clipped = mb.values + (value - mb.values).clamp(-cfg.clip_range, cfg.clip_range)
+            v_clipped_error = (v_clipped - mb.returns).square()
+            if cfg.value_loss == "ppo2":
+                v_loss = 0.5 * torch.max(v_error, v_clipped_error).mean()
+            else:  # SB3: with clip_range_vf set, only the clipped prediction's error, and no 0.5
+                v_loss = v_clipped_error.mean()
+        else:
+            v_loss = (0.5 if cfg.value_loss == "ppo2" else 1.0) * v_error.mean()
+        terms = {"loss_policy": pg_loss, "loss_value_weighted": cfg.vf_coef * v_loss}
+        if cfg.ent_coef:
+            entropy = (agent.log_std + 0.5 * (1.0 + np.log(2 * np.pi))).sum()
+            terms["loss_entropy"] = -cfg.ent_coef * entropy
+        if cfg.kl_coef:
+            terms["loss_kl"] = cfg.kl_coef * gaussian_kl(mean, agent.log_std, mb.means, old_log_std).mean()
+        clash = terms.keys() & extra.keys()
+        if clash:
+            raise ValueError(f"the agent's extra loss terms reuse engine names: {sorted(clash)}")
+        terms.update(extra)
+        loss = torch.stack(list(terms.values())).sum()
+        with torch.no_grad():
+            logs = {
+                "loss_policy": pg_loss, "loss_value": v_loss,
+                "approx_kl": ((ratio - 1) - logratio).mean(),
+                "clipfrac": ((ratio - 1.0).abs() > cfg.clip_range).float().mean(),
+                "ratio_dev": (ratio - 1.0).abs().max(),
+                **{k: v for k, v in terms.items() if k not in ("loss_policy", "loss_value_weighted")},
+            }
+        return loss, logs
+
+    def update(self, batch: Minibatch) -> dict[str, float]:
         cfg, agent = self.config, self.agent
         old_log_std = agent.log_std.detach().clone()
-        size = batch["obs"].shape[0]
+        size = batch.obs.shape[0]
         logged: list[torch.Tensor] = []  # per-minibatch scalars, stacked once at the end (no sync per step)
         names: list[str] = []
-        n_mb = 0
         first_ratio_dev = 0.0
         for _epoch in range(cfg.epochs):
-            perm = torch.randperm(size, generator=self.torch_gen)
             # One gather per epoch; each minibatch is then a contiguous slice (a view, no copy).
-            b_obs, b_actions, b_logprobs, b_adv, b_returns, b_values, b_means = (
-                batch[k][perm] for k in ("obs", "actions", "log_probs", "advantages", "returns", "values", "means"))
+            shuffled = batch.take(torch.randperm(size, generator=self.torch_gen))
             for start in range(0, size, cfg.minibatch_size):
-                mb_inds = slice(start, start + cfg.minibatch_size)
-                mean, value, extra = agent.evaluate(b_obs[mb_inds])
-                new_logprob = gaussian_log_prob(b_actions[mb_inds], mean, agent.log_std)
-                logratio = new_logprob - b_logprobs[mb_inds]
-                ratio = logratio.exp()
-                mb_adv = b_adv[mb_inds]
-                if cfg.normalize_advantage and mb_adv.numel() > 1:
-                    mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
-                pg_loss = torch.max(
-                    -mb_adv * ratio, -mb_adv * ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range)
-                ).mean()
-                mb_returns = b_returns[mb_inds]
-                if cfg.clip_value_loss:
-                    mb_values = b_values[mb_inds]
-                    v_clipped = mb_values + (value - mb_values).clamp(-cfg.clip_range, cfg.clip_range)
-                    v_loss = 0.5 * torch.max((value - mb_returns).square(), (v_clipped - mb_returns).square()).mean()
-                else:
-                    v_loss = 0.5 * (value - mb_returns).square().mean()
-                loss = pg_loss + cfg.vf_coef * v_loss
-                if cfg.ent_coef:
-                    entropy = (agent.log_std + 0.5 * (1.0 + np.log(2 * np.pi))).sum()
-                    loss = loss - cfg.ent_coef * entropy
-                if cfg.kl_coef:
-                    kl = gaussian_kl(mean, agent.log_std, b_means[mb_inds], old_log_std).mean()
-                    loss = loss + cfg.kl_coef * kl
-                    extra = {**extra, "loss_kl": cfg.kl_coef * kl}
-                for term in extra.values():
-                    loss = loss + term
+                loss, logs = self.loss(shuffled.take(slice(start, start + cfg.minibatch_size)), old_log_std)
                 self.flat.zero_grad()
                 loss.backward()
-                grad_norm = self.flat.clip_grad_norm(cfg.max_grad_norm)
+                logs["grad_norm"] = self.flat.clip_grad_norm(cfg.max_grad_norm)
                 self.optimizer.step()
-
-                with torch.no_grad():
-                    if n_mb == 0:
-                        first_ratio_dev = float((ratio - 1.0).abs().max())
-                        names = ["loss_policy", "loss_value", "grad_norm", "approx_kl", "clipfrac", *extra]
-                    logged.append(torch.stack([
-                        pg_loss, v_loss, grad_norm, ((ratio - 1) - logratio).mean(),
-                        ((ratio - 1.0).abs() > cfg.clip_range).float().mean(), *extra.values(),
-                    ]))
-                n_mb += 1
+                if not logged:
+                    first_ratio_dev = float(logs["ratio_dev"])
+                    names = [k for k in logs if k != "ratio_dev"]
+                logged.append(torch.stack([logs[k].detach() for k in names]))
         means = torch.stack(logged).mean(0).tolist()
         metrics = dict(zip(names, means, strict=True))
         metrics["first_minibatch_ratio_dev"] = first_ratio_dev
-        returns, values = batch["returns"], batch["values"]
+        returns, values = batch.returns, batch.values
         var_y = float(returns.var())
         metrics["explained_variance"] = float("nan") if var_y == 0 else 1 - float((returns - values).var()) / var_y
         return metrics

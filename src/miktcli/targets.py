@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 from miktcli.errors import MiktError
 from miktcli.policies import ActorCritic
@@ -17,8 +18,16 @@ def _agent_from_checkpoint(run, registry: Path) -> ActorCritic:
     return agent
 
 
-def load_run_policy(registry: Path, run_id: str, with_teacher: bool) -> tuple[ActorCritic, str, str]:
+class LoadedPolicy(NamedTuple):
+    policy: ActorCritic
+    env: str
+    label: str
+    clip_actions: bool  # how actions reached the env in training: evaluate the same way
+
+
+def load_run_policy(registry: Path, run_id: str, with_teacher: bool) -> LoadedPolicy:
     """A run's policy: the saved teacher-free student, or (with_teacher) the MIKT agent from its checkpoint."""
+    from miktcli.ppo import PPOConfig
     from miktcli.runs import open_run
     from miktcli.teachers import load_policy_file
     from miktcli.transfer import student_path
@@ -41,10 +50,11 @@ def load_run_policy(registry: Path, run_id: str, with_teacher: bool) -> tuple[Ac
         label = f"{run.id} student (checkpoint at {run.card.steps_done} steps)"
     agent.obs_normalizer.frozen = True
     agent.eval()
-    return agent, run.card.env, label
+    clip = PPOConfig.from_record(run.card.config.get("ppo", {})).clip_actions_for_env
+    return LoadedPolicy(agent, run.card.env, label, clip)
 
 
-def load_policy(registry: Path, target: str, with_teacher: bool = False) -> tuple[ActorCritic, str, str]:
+def load_policy(registry: Path, target: str, with_teacher: bool = False) -> LoadedPolicy:
     from miktcli.runs import RUN_TARGET_RE
     from miktcli.teachers import load_teacher
 
@@ -53,4 +63,4 @@ def load_policy(registry: Path, target: str, with_teacher: bool = False) -> tupl
     if with_teacher:
         raise MiktError("--with-teacher applies to runs (runN), not to teachers")
     teacher = load_teacher(registry, target)
-    return teacher.policy, teacher.card.env, teacher.card.ref
+    return LoadedPolicy(teacher.policy, teacher.card.env, teacher.card.ref, teacher.card.clip_actions_for_env)

@@ -19,7 +19,7 @@ from miktcli.runs import Run, create_run
 
 def new_run(registry: Path, *, kind: str, env: str, method: str, seed: int, total_steps: int,
             config: dict[str, Any], command: str, teachers: list | None = None) -> Run:
-    ppo = PPOConfig.model_validate(config.get("ppo", {}))
+    ppo = PPOConfig.from_record(config.get("ppo", {}))
     if total_steps < ppo.batch_size:
         raise MiktError(f"--steps {total_steps} is less than one rollout ({ppo.batch_size} steps)")
     load_spec(env)  # fail on an unknown env before a run folder exists
@@ -37,7 +37,7 @@ class Job:
         torch.manual_seed(run.card.seed)
         self.spec = load_spec(run.card.env)
         self.agent = build_agent(run, registry)
-        self.config = PPOConfig.model_validate(run.card.config.get("ppo", {}))
+        self.config = PPOConfig.from_record(run.card.config.get("ppo", {}))
         self.trainer = PPOTrainer(self.agent, lambda: make_env(self.spec), self.config, run.card.total_steps,
                                   seed=run.card.seed)
         self.best_return = -math.inf
@@ -85,6 +85,7 @@ def publish_teacher_from_job(job: Job, name: str) -> Any:
     teacher = TeacherCard(
         name=name, version=1, env=card.env, env_spec=job.spec.model_dump(), obs_dim=job.spec.obs_dim,
         act_dim=job.spec.act_dim, pi_hidden=card.config["pi_hidden"], vf_hidden=card.config["vf_hidden"],
+        clip_actions_for_env=job.config.clip_actions_for_env,
         steps=job.trainer.global_step, seed=card.seed, final_return=job.final_return,
         best_return=job.best_return if math.isfinite(job.best_return) else None,
         hyperparameters=card.config["ppo"], packages=card.packages, code_version=card.code_version,

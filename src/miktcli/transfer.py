@@ -114,7 +114,7 @@ def student_path(run: Run) -> Path:
 
 
 def save_student(run: Run, student: GaussianActorCritic, final_return: float | None,
-                 best_return: float | None) -> TeacherCard:
+                 best_return: float | None, clip_actions: bool) -> TeacherCard:
     """The teacher-free student as a standalone policy file (same format as a teacher)."""
     from miktcli.checkpoint import tensors_sha256
 
@@ -123,7 +123,8 @@ def save_student(run: Run, student: GaussianActorCritic, final_return: float | N
     card = TeacherCard(
         name=f"{run.id}-student", version=1, env=run.card.env, env_spec=spec.model_dump(), obs_dim=spec.obs_dim,
         act_dim=spec.act_dim, pi_hidden=student.pi.hidden_sizes, vf_hidden=student.vf.hidden_sizes,
-        steps=run.card.steps_done, seed=run.card.seed, final_return=final_return, best_return=best_return,
+        clip_actions_for_env=clip_actions, steps=run.card.steps_done, seed=run.card.seed,
+        final_return=final_return, best_return=best_return,
         hyperparameters=run.card.config, packages=run.card.packages, code_version=run.card.code_version,
         source_run=run.id, created=now(), tensors_sha256=tensors_sha256(tensors),
     )
@@ -131,12 +132,12 @@ def save_student(run: Run, student: GaussianActorCritic, final_return: float | N
     return card
 
 
-def eval_policy(policy: ActorCritic, env_name: str, episodes: int, seed: int,
+def eval_policy(policy: ActorCritic, env_name: str, episodes: int, seed: int, clip_actions: bool,
                 deterministic: bool = True) -> dict[str, float]:
     env = make_env(env_name)
     policy.obs_normalizer.frozen = True
     try:
-        res = evaluate(lambda o: policy.act(o, deterministic), env, episodes, seed)
+        res = evaluate(lambda o: policy.act(o, deterministic), env, episodes, seed, clip_actions=clip_actions)
     finally:
         env.close()
     return res.summary()
@@ -147,6 +148,7 @@ def finish_transfer(job, episodes: int) -> dict[str, Any]:
     from miktcli.mikt import MiktActorCritic
 
     run, agent = job.run, job.agent
+    clip = job.config.clip_actions_for_env
     seed = 10_000 + run.card.seed  # evaluation episodes never reuse training seeds
     result: dict[str, Any] = {"final_train_return": job.final_return,
                               "best_train_return": job.best_return if math.isfinite(job.best_return) else None}
@@ -156,11 +158,11 @@ def finish_transfer(job, episodes: int) -> dict[str, Any]:
             agent.teacher_active = True
             result["final_mixing_learned"] = {
                 k: v for k, v in agent.diagnostics().items() if k.startswith("p_")}
-            result["eval_with_teacher"] = eval_policy(agent, run.card.env, episodes, seed)
+            result["eval_with_teacher"] = eval_policy(agent, run.card.env, episodes, seed, clip)
             student = agent.student_only()
         else:
             student = agent
-        result["eval_without_teacher"] = eval_policy(student, run.card.env, episodes, seed)
-    save_student(run, student, job.final_return, result["best_train_return"])
+        result["eval_without_teacher"] = eval_policy(student, run.card.env, episodes, seed, clip)
+    save_student(run, student, job.final_return, result["best_train_return"], clip)
     run.save_card(status="completed", result=result)
     return result

@@ -42,16 +42,17 @@ def eval_command(
 
     setup_torch()
     reg = resolve_registry(registry)
-    policy, env_name, label = load_policy(reg, target, with_teacher)
+    policy, env_name, label, clip_actions = load_policy(reg, target, with_teacher)
     render = render_offscreen or video is not None
     env = make_env(env_name, render_mode="rgb_array" if render else None)
     torch.manual_seed(seed)
     try:
         res = evaluate(lambda o: policy.act(o, deterministic), env, episodes, seed,
-                       capture_episodes=1 if render else 0)
+                       capture_episodes=1 if render else 0, clip_actions=clip_actions)
     finally:
         env.close()
     summary = {"target": target, "policy": label, "env": env_name, "deterministic": deterministic,
+               "clip_actions_for_env": clip_actions,
                **res.summary()}
     if render:
         video = video or Path(f"{target.replace('@', '-')}-eval.mp4")

@@ -63,6 +63,8 @@ def transfer(
     coupling_pi_coef: float = typer.Option(1.0, "--coupling-pi-coef", min=0),
     coupling_vf_coef: float = typer.Option(0.1, "--coupling-vf-coef", min=0),
     mi_coef: float = typer.Option(0.5, "--mi-coef", min=0),
+    lateral: str = typer.Option(
+        "identity", "--lateral", help="identity (the paper) | projection (the authors' code: learnable U per layer)."),
     encoder_width: list[int] = typer.Option(
         None, "--encoder-width", help="Optional check: must equal each teacher's state dim (read from its card)."),
     hidden: str = typer.Option(None, "--hidden", help="Optional check: must equal the teachers' hidden sizes."),
@@ -88,9 +90,11 @@ def transfer(
             raise MiktError(f"unknown method '{method}'; known: mikt, vpg, mlpp")
         if coupling_schedule not in ("three-phase", "constant"):
             raise MiktError(f"unknown coupling schedule '{coupling_schedule}'; known: three-phase, constant")
+        if lateral not in ("identity", "projection"):
+            raise MiktError(f"unknown --lateral '{lateral}'; known: identity, projection")
         mikt = {"coupling_schedule": coupling_schedule, "coupling_pi_coef": coupling_pi_coef,
                 "coupling_vf_coef": coupling_vf_coef, "mi": mi, "mi_coef": mi_coef,
-                "rl_encoder_grad": rl_encoder_grad}
+                "rl_encoder_grad": rl_encoder_grad, "lateral": lateral}
         run = start_transfer(
             reg, to=to, method=method, teacher_refs=list(teacher or []), steps=steps, seed=seed,
             command=command_line(), kl_coef=kl_coef, num_envs=num_envs, mikt_options=mikt,

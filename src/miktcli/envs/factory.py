@@ -8,6 +8,7 @@ from typing import Any
 import gymnasium as gym
 
 from miktcli.envs.centipede import CentipedeEnv
+from miktcli.envs.mujoco_warnings import capture_mujoco_warnings
 from miktcli.envs.spec import CentipedeSpec, GymnasiumSpec, load_all_specs, load_spec
 from miktcli.errors import MiktError
 
@@ -43,6 +44,7 @@ def make_env(spec: Spec | str, render_mode: str | None = None) -> gym.Env:
     """Build the environment a spec describes and check it has the dimensions the spec states."""
     if isinstance(spec, str):
         spec = load_spec(spec)
+    capture_mujoco_warnings()
     env = _build(spec, render_mode)
     obs_dim, act_dim = env_dims(env)
     if (obs_dim, act_dim) != (spec.obs_dim, spec.act_dim):

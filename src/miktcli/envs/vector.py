@@ -24,8 +24,9 @@ class StepResult:
 
 
 class SyncEnvs:
-    def __init__(self, envs: list[gym.Env], seed: int):
+    def __init__(self, envs: list[gym.Env], seed: int, clip_actions: bool = False):
         self.envs = envs
+        self.clip_actions = clip_actions
         self.num = len(envs)
         self.action_low = envs[0].action_space.low.astype(np.float32)
         self.action_high = envs[0].action_space.high.astype(np.float32)
@@ -38,14 +39,16 @@ class SyncEnvs:
         return self._obs
 
     def step(self, actions: np.ndarray) -> StepResult:
-        clipped = np.clip(actions, self.action_low, self.action_high)  # the buffer keeps the unclipped sample
+        # The buffer always keeps the raw sample; the env gets it raw too unless asked (see PPOConfig).
+        if self.clip_actions:
+            actions = np.clip(actions, self.action_low, self.action_high)
         rewards = np.empty(self.num)
         terminated = np.zeros(self.num, dtype=bool)
         truncated = np.zeros(self.num, dtype=bool)
         result = StepResult(self._obs, rewards, terminated, truncated)
         next_obs = np.empty_like(self._obs)
         for i, env in enumerate(self.envs):
-            obs, reward, term, trunc, _ = env.step(clipped[i])
+            obs, reward, term, trunc, _ = env.step(actions[i])
             rewards[i] = reward
             self._returns[i] += reward
             self._lengths[i] += 1
