@@ -31,3 +31,88 @@ def test_bad_grid_file(registry, tmp_path):
     bad.write_text('name = "x"\nsteps = 10\nseeds = []\n')
     r = runner.invoke(app, ["study", str(bad)])
     assert r.exit_code == 1 and "field 'seeds'" in r.output
+
+
+def fake_run(registry, env, method, seed, curve, eval_return, mixing=None):
+    """A completed run with a given return curve (one point per 2048-step iteration)."""
+    from miktcli.runs import create_run
+
+    run = create_run(registry, kind="transfer", env=env, method=method, seed=seed, total_steps=2048 * len(curve),
+                     config={}, command="test", teachers=[], code_version="test", packages={})
+    for i, ret in enumerate(curve, start=1):
+        run.append_metrics({"iteration": i, "steps": 2048 * i, "return_mean": ret, **(mixing or {})})
+    result = {"eval_without_teacher": {"return_mean": eval_return}}
+    if mixing:
+        result["final_mixing_learned"] = mixing
+    run.save_card(status="completed", result=result)
+    return run.id
+
+
+def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
+    from miktcli.study import Study, cell_key, load_grid
+
+    grid_file = tmp_path / "g.toml"
+    grid_file.write_text(
+        'name = "hand"\nsteps = 6144\nseeds = [0, 1]\nmarks = [4000, 6144]\nbaseline = "vpg"\n'
+        '[[pairs]]\nfrom = ["a"]\nto = "hopper"\n[[pairs]]\nfrom = ["b"]\nto = "hopper"\n'
+        '[[methods]]\nname = "mikt"\nmethod = "mikt"\n[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+    grid = load_grid(grid_file)
+    study = Study(grid, tmp_path / "out", registry)
+    # vpg is shared by both pairs (same target): one run per seed, not one per pair
+    assert len(study.distinct_cells()) == 2 * 2 + 2
+    mix = {"p_pi_0": 0.9, "p_vf_0": 0.8}
+    cells = {
+        ("a", "mikt", 0): fake_run(registry, "hopper", "mikt", 0, [-10, -4, 2], 10, mix),
+        ("a", "mikt", 1): fake_run(registry, "hopper", "mikt", 1, [-6, -2, 6], 20, mix),
+        ("-", "vpg", 0): fake_run(registry, "hopper", "vpg", 0, [-12, -10, -6], 5),
+        ("-", "vpg", 1): fake_run(registry, "hopper", "vpg", 1, [-8, -6, -2], 7),
+    }
+    pair_a = grid.pairs[0]
+    methods = {m.name: m for m in grid.methods}
+    for (_source, method, seed), run_id in cells.items():
+        study._remember(cell_key(pair_a, methods[method], seed), run_id)
+    study.report()
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    mikt, vpg = summary["a → hopper"]["mikt"], summary["a → hopper"]["vpg"]
+    assert summary["b → hopper"]["vpg"]["runs"] == vpg["runs"]  # the shared baseline
+    assert "mikt" not in summary["b → hopper"]
+    # marks: 4000 reports the iteration at 2048 (the last at or before it), 6144 the last
+    assert mikt["marks"] == {"2048": {"mean": -8.0, "std": 2 ** 0.5 * 2}, "6144": {"mean": 4.0, "std": 2 ** 0.5 * 2}}
+    assert vpg["final_train_mean"] == -4.0 and vpg["final_eval_std"] == 2 ** 0.5
+    # area under the curve: per-seed means (-4, -2/3) then mean and sample std over seeds
+    assert abs(mikt["mean_over_training"] - (-4 - 2 / 3) / 2) < 1e-9
+    # vpg final = -4 ≤ 0: ¾ of it is -5 (a quarter of |final| below), which mikt's mean curve
+    # (-8, -3, 4) first reaches at 4096; vpg's own (-10, -8, -4) at 6144
+    assert mikt["steps_to_three_quarters_of_baseline_final"] == "4,096"
+    assert mikt["steps_to_baseline_final"] == "4,096"
+    assert vpg["steps_to_three_quarters_of_baseline_final"] == "6,144"
+    table = (tmp_path / "out" / "results.md").read_text()
+    assert "| method | n | 2,048 | 6,144 |" in table
+    assert "| mikt | 2 | -8 ± 3 | 4 ± 3 |" in table
+
+
+def test_grids_with_duplicate_methods_or_pairs_are_refused(tmp_path):
+    from miktcli.errors import MiktError
+    from miktcli.study import load_grid
+
+    base = 'name = "x"\nsteps = 2048\nseeds = [0]\n'
+    pair = '[[pairs]]\nfrom = ["a"]\nto = "hopper"\n'
+    vpg = '[[methods]]\nname = "vpg"\nmethod = "vpg"\n'
+    for body, message in ((pair + vpg + vpg, "duplicate method name: vpg"),
+                          (pair + pair + vpg, "duplicate pair: a → hopper")):
+        (tmp_path / "g.toml").write_text(base + body)
+        try:
+            load_grid(tmp_path / "g.toml")
+        except MiktError as err:
+            assert message in str(err)
+        else:
+            raise AssertionError("accepted")
+
+
+def test_unknown_teacher_is_found_before_any_cell_trains(registry, tmp_path):
+    grid = tmp_path / "g.toml"
+    grid.write_text('name = "x"\nsteps = 2048\nseeds = [0]\n[[pairs]]\nfrom = ["ghost"]\nto = "hopper"\n'
+                    '[[methods]]\nname = "vpg"\nmethod = "vpg"\n[[methods]]\nname = "mikt"\nmethod = "mikt"\n')
+    r = runner.invoke(app, ["study", str(grid), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 1 and "unknown teacher 'ghost'" in r.output
+    assert not (registry / "runs").exists()

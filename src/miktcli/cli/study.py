@@ -33,7 +33,7 @@ def study(
     grid = load_grid(grid_file)
     st = Study(grid, out or Path("benchmarks/results") / grid.name, reg)
     if not report_only:
-        total = len(st.plan())
+        total = len(st.distinct_cells())
         done = 0
         for key, run, what in st.execute(command_line(), lambda r: train_transfer_run(r, reg, grid.eval_episodes)):
             if what in ("done", "finished"):
