@@ -7,13 +7,14 @@ from safetensors.torch import save as st_save
 
 from miktcli.cards import TeacherCard, now
 from miktcli.checkpoint import CARD_KEY
+from miktcli.envs import load_spec
 from miktcli.errors import MiktError
 from miktcli.policies import GaussianActorCritic
 from miktcli.teachers import list_names, load_teacher, publish_teacher, resolve, versions
 
 
 def make_card(**kw):
-    base = dict(name="tiny", version=1, env="hopper", env_spec={"name": "hopper"}, obs_dim=11, act_dim=3,
+    base = dict(name="tiny", version=1, env="hopper", env_spec=load_spec("hopper").model_dump(), obs_dim=11, act_dim=3,
                 pi_hidden=[8, 8], vf_hidden=[8, 8], steps=0, seed=0, final_return=None, best_return=None,
                 hyperparameters={}, packages={}, code_version="test", created=now(), tensors_sha256="")
     base.update(kw)

@@ -16,7 +16,7 @@ from safetensors import SafetensorError, safe_open
 from safetensors.torch import load, save
 
 from miktcli.atomic import write_bytes_atomic
-from miktcli.errors import MiktError
+from miktcli.errors import MiktError, describe_validation_error
 
 CARD_KEY = "mikt_card"
 CardT = TypeVar("CardT", bound=BaseModel)
@@ -64,9 +64,7 @@ def read_card(path: Path, card_type: type[CardT], schema_version: int) -> CardT:
     try:
         return card_type.model_validate(raw)
     except ValidationError as err:
-        first = err.errors()[0]
-        loc = ".".join(str(p) for p in first["loc"])
-        raise MiktError(f"{path}: invalid card, field '{loc}': {first['msg']}") from err
+        raise MiktError(f"{path}: invalid card, {describe_validation_error(err)}") from err
 
 
 def read_tensors(path: Path) -> dict[str, torch.Tensor]:

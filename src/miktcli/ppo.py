@@ -371,6 +371,9 @@ class PPOTrainer:
             state[f"optim.{k}"] = torch.as_tensor(v).clone().contiguous()
         for k, v in self.reward_scaler.state().items():
             state[f"reward_scaler.{k}"] = v
+        env_arrays, _ = self.envs.state()
+        for k, v in env_arrays.items():
+            state[f"envs.{k}"] = torch.from_numpy(v)
         return state
 
     def progress_state(self) -> dict[str, Any]:
@@ -378,18 +381,48 @@ class PPOTrainer:
             "iteration": self.iteration, "global_step": self.global_step, "episodes": self.episodes,
             "recent_returns": list(self.recent_returns), "recent_lengths": list(self.recent_lengths),
             "numpy_rng": self.rng.bit_generator.state, "torch_rng": self.torch_gen.get_state().tolist(),
+            "envs": self.envs.state()[1],
         }
 
+    REQUIRED_PROGRESS = ("iteration", "global_step", "episodes", "recent_returns", "recent_lengths", "numpy_rng",
+                         "torch_rng")
+
     def load_state(self, tensors: dict[str, torch.Tensor], progress: dict[str, Any]) -> None:
-        agent_state = {k[len("agent."):]: v for k, v in tensors.items() if k.startswith("agent.")}
+        """Restore a checkpoint. Raises ValueError naming what is missing or does not fit (nothing is
+        changed then); checkpoints from mikt 0.1 have no env state: their envs start fresh episodes."""
+        def part(prefix: str) -> dict[str, torch.Tensor]:
+            return {k[len(prefix):]: v for k, v in tensors.items() if k.startswith(prefix)}
+
+        agent_state, opt_state, scaler_state = part("agent."), part("optim."), part("reward_scaler.")
+        wanted = self.agent.state_dict()
+        missing, extra = sorted(wanted.keys() - agent_state.keys()), sorted(agent_state.keys() - wanted.keys())
+        if missing or extra:
+            raise ValueError(f"agent tensors do not fit this run's model: missing {missing[:3]}, "
+                             f"unexpected {extra[:3]}")
+        bad = [k for k, v in agent_state.items() if v.shape != wanted[k].shape]
+        if bad:
+            raise ValueError(f"agent tensor '{bad[0]}' has shape {tuple(agent_state[bad[0]].shape)}, the model "
+                             f"needs {tuple(wanted[bad[0]].shape)}")
+        flat = self.flat.flat
+        for key in ("step", "exp_avg", "exp_avg_sq"):
+            if key not in opt_state:
+                raise ValueError(f"no optimiser state 'optim.{key}'")
+        for key in ("exp_avg", "exp_avg_sq"):
+            if opt_state[key].shape != flat.shape:
+                raise ValueError(f"optimiser state 'optim.{key}' has shape {tuple(opt_state[key].shape)}, "
+                                 f"the model has {flat.numel()} parameters")
+        if set(scaler_state) != {"returns", "moments"}:
+            raise ValueError("no reward-scaler state ('reward_scaler.returns', 'reward_scaler.moments')")
+        lost = [k for k in self.REQUIRED_PROGRESS if k not in progress]
+        if lost:
+            raise ValueError(f"progress lacks '{lost[0]}'")
+        env_arrays = {k: v.numpy() for k, v in part("envs.").items()}
+
         self.agent.load_state_dict(agent_state)  # copies in place: the flat-buffer views survive
-        opt_state = {k[len("optim."):]: v for k, v in tensors.items() if k.startswith("optim.")}
-        if opt_state:
-            sd = self.optimizer.state_dict()
-            sd["state"] = {0: opt_state}
-            self.optimizer.load_state_dict(sd)
-        self.reward_scaler.load({k[len("reward_scaler."):]: v for k, v in tensors.items()
-                                 if k.startswith("reward_scaler.")})
+        sd = self.optimizer.state_dict()
+        sd["state"] = {0: opt_state}
+        self.optimizer.load_state_dict(sd)
+        self.reward_scaler.load(scaler_state)
         self.iteration = progress["iteration"]
         self.global_step = progress["global_step"]
         self.episodes = progress["episodes"]
@@ -397,6 +430,8 @@ class PPOTrainer:
         self.recent_lengths.extend(progress["recent_lengths"])
         self.rng.bit_generator.state = progress["numpy_rng"]
         self.torch_gen.set_state(torch.tensor(progress["torch_rng"], dtype=torch.uint8))
+        if env_arrays and "envs" in progress:
+            self.envs.load_state(env_arrays, progress["envs"])
 
     def close(self) -> None:
         self.envs.close()

@@ -6,19 +6,21 @@ optimiser moments, normaliser and reward statistics, RNG states), so an interrup
 
 from __future__ import annotations
 
+import fcntl
 import json
 import math
+import os
 import re
 from pathlib import Path
 from typing import Any
 
 import torch
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, ValidationError
 
 from miktcli.atomic import append_line, write_text_atomic
 from miktcli.cards import RUN_SCHEMA_VERSION, RunCard, now
 from miktcli.checkpoint import read_card, read_tensors, save_with_card, tensors_sha256, verify_sha
-from miktcli.errors import MiktError
+from miktcli.errors import MiktError, describe_validation_error
 
 RUN_RE = re.compile(r"^run(\d+)$")
 RUN_TARGET_RE = re.compile(r"^(run\d+|last)$")  # what eval and inspect accept as a run
@@ -55,9 +57,66 @@ def _json_safe(value: Any) -> Any:
     return value
 
 
+class RunLock:
+    """An exclusive OS lock on runN/lock, held while a process trains the run.
+
+    The kernel drops a flock when its process dies (SIGKILL included), so a run whose card says `running`
+    but whose lock is free has lost its trainer: `stale`. The file holds the owner's pid for messages."""
+
+    def __init__(self, run: Run):
+        self.run, self.path = run, run.path / "lock"
+        self.fd: int | None = None
+
+    def acquire(self) -> RunLock:
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            owner = lock_owner(self.run)
+            raise MiktError(f"{self.run.id} is being trained by pid {owner if owner else '?'}",
+                            hint="wait for it, or stop that process (Ctrl-C or SIGTERM) and resume") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        self.fd = fd
+        return self
+
+    def release(self) -> None:
+        if self.fd is not None:
+            os.close(self.fd)  # closing drops the flock
+            self.fd = None
+
+
+def lock_owner(run: Run) -> int | None:
+    """The pid training `run` now, or None when no live process holds its lock."""
+    path = run.path / "lock"
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        return None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            text = os.pread(fd, 32, 0).decode(errors="replace").strip()
+            return int(text) if text.isdigit() else -1
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)
+
+
 class Run:
     def __init__(self, path: Path, card: RunCard):
         self.path, self.card = path, card
+        self.damaged_metric_lines = 0  # counted by read_metrics
+
+    @property
+    def status(self) -> str:
+        """The card's status, or `stale` for a run marked running whose trainer is gone (SIGKILL, crash)."""
+        if self.card.status == "running" and lock_owner(self) is None:
+            return "stale"
+        return self.card.status
 
     @property
     def id(self) -> str:
@@ -79,14 +138,22 @@ class Run:
         append_line(self.metrics_path, json.dumps({k: _json_safe(v) for k, v in metrics.items()}))
 
     def read_metrics(self) -> list[dict[str, Any]]:
+        """Every well-formed row, in order. A damaged line (cut by a crash, edited, not UTF-8, not an object
+        with integer `iteration` and `steps`) is skipped and counted in `damaged_metric_lines`."""
+        self.damaged_metric_lines = 0
         if not self.metrics_path.exists():
             return []
         rows = []
-        for line in self.metrics_path.read_text().splitlines():
+        for line in self.metrics_path.read_bytes().splitlines():
             try:
-                rows.append(json.loads(line))
-            except json.JSONDecodeError:
-                continue  # a line cut by a crash: the rows before it stand
+                row = json.loads(line.decode("utf-8"))
+            except (UnicodeDecodeError, json.JSONDecodeError):
+                row = None
+            if not (isinstance(row, dict) and all(isinstance(row.get(k), int) for k in ("iteration", "steps"))
+                    and all(v is None or isinstance(v, int | float) for v in row.values())):
+                self.damaged_metric_lines += bool(line.strip())
+                continue
+            rows.append(row)
         return rows
 
     def truncate_metrics(self, iteration: int) -> None:
@@ -151,8 +218,8 @@ def open_run(registry: Path, run_id: str) -> Run:
         raise MiktError(f"{card_path}: schema version {raw['schema_version']} is newer than this mikt understands")
     try:
         return Run(path, RunCard.model_validate(raw))
-    except ValueError as err:
-        raise MiktError(f"{card_path}: invalid run card: {err}".splitlines()[0]) from err
+    except ValidationError as err:
+        raise MiktError(f"{card_path}: invalid run card, {describe_validation_error(err)}") from err
 
 
 def open_resumable(registry: Path, run_id: str, kind: str) -> Run:
@@ -166,11 +233,12 @@ def open_resumable(registry: Path, run_id: str, kind: str) -> Run:
     return run
 
 
-def list_runs(registry: Path) -> list[Run]:
-    runs = []
+def list_runs(registry: Path) -> tuple[list[Run], list[tuple[str, MiktError]]]:
+    """The readable runs, and (run id, what is wrong) for each run folder whose run.json is not."""
+    runs, damaged = [], []
     for run_id in run_ids(registry):
         try:
             runs.append(open_run(registry, run_id))
-        except MiktError:
-            continue  # a folder being created right now, or a damaged one: `mikt inspect` names the problem
-    return runs
+        except MiktError as err:
+            damaged.append((run_id, err))
+    return runs, damaged

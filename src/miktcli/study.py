@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from miktcli.atomic import write_text_atomic
-from miktcli.errors import MiktError
+from miktcli.errors import MiktError, describe_validation_error
 from miktcli.runs import Run, open_run
 
 
@@ -82,8 +82,7 @@ def load_grid(path: Path) -> Grid:
     except tomllib.TOMLDecodeError as err:
         raise MiktError(f"{path}: not valid TOML: {err}") from err
     except ValidationError as err:
-        first = err.errors()[0]
-        raise MiktError(f"{path}: field '{'.'.join(map(str, first['loc']))}': {first['msg']}") from err
+        raise MiktError(f"{path}: {describe_validation_error(err)}") from err
 
 
 def cell_key(pair: PairSpec, method: MethodSpec, seed: int) -> str:
@@ -128,12 +127,25 @@ class Study:
     def __init__(self, grid: Grid, out_dir: Path, registry: Path):
         self.grid, self.out_dir, self.registry = grid, Path(out_dir), Path(registry)
         self.state_path = self.out_dir / "state.json"
-        self.cells: dict[str, str] = json.loads(self.state_path.read_text()) if self.state_path.exists() else {}
+        self.cells: dict[str, str] = self._read_state()
         for pair, method, seed in self.plan():  # adopt the runs of a state.json written by mikt 0.1
             key, legacy = cell_key(pair, method, seed), legacy_cell_key(pair, method, seed)
             if key != legacy and legacy in self.cells:
                 run_id = self.cells.pop(legacy)
                 self.cells.setdefault(key, run_id)
+
+    def _read_state(self) -> dict[str, str]:
+        if not self.state_path.exists():
+            return {}
+        try:
+            cells = json.loads(self.state_path.read_bytes().decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as err:
+            raise MiktError(f"{self.state_path}: damaged study state: {err}",
+                            hint="restore it, or move it away to start the study afresh") from err
+        if not (isinstance(cells, dict) and all(isinstance(k, str) and isinstance(v, str) for k, v in cells.items())):
+            raise MiktError(f"{self.state_path}: damaged study state: expected an object of cell → run id",
+                            hint="restore it, or move it away to start the study afresh")
+        return cells
 
     def _remember(self, key: str, run_id: str) -> None:
         self.cells[key] = run_id

@@ -18,6 +18,9 @@ from miktcli.errors import MiktError
 from miktcli.policies import GaussianActorCritic
 
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
+MAX_NAME_LENGTH = 64
+# `eval` and `inspect` read these as runs (runN, last) or as a version alias: a teacher may not take them.
+RESERVED_NAME_RE = re.compile(r"^(run\d+|last|latest)$")
 REF_RE = re.compile(r"^(?P<name>[^@]+)(@(?P<version>v\d+|latest))?$")
 VERSION_FILE_RE = re.compile(r"^v(\d+)\.safetensors$")
 
@@ -27,8 +30,16 @@ def teachers_dir(registry: Path) -> Path:
 
 
 def check_name(name: str) -> str:
-    if not NAME_RE.match(name):
-        raise MiktError(f"invalid teacher name '{name}': use lowercase letters, digits, '.', '_' and '-'")
+    """Teacher names are also folder names: no path separators, no '..', nothing a run id could be."""
+    if not name:
+        raise MiktError("teacher name is empty")
+    if len(name) > MAX_NAME_LENGTH:
+        raise MiktError(f"teacher name '{name[:20]}…' is {len(name)} characters long; at most {MAX_NAME_LENGTH}")
+    if not NAME_RE.match(name) or ".." in name:
+        raise MiktError(f"invalid teacher name '{name}': use lowercase letters, digits, '.', '_' and '-', "
+                        "starting with a letter or digit")
+    if RESERVED_NAME_RE.match(name):
+        raise MiktError(f"teacher name '{name}' is reserved: eval and inspect read it as a run or an alias")
     return name
 
 
@@ -51,6 +62,7 @@ def resolve(registry: Path, ref: str) -> Path:
     if not m:
         raise MiktError(f"invalid teacher reference '{ref}': expected NAME or NAME@vN")
     name, version = m.group("name"), m.group("version")
+    check_name(name)  # a reference is never a path: '../x' or '/abs' are refused here
     known = versions(registry, name)
     if not known:
         names = ", ".join(list_names(registry)) or "(none)"
@@ -64,10 +76,18 @@ def resolve(registry: Path, ref: str) -> Path:
 
 
 def check_card_against_tensors(path: Path, card: TeacherCard, tensors: dict[str, torch.Tensor]) -> None:
-    """The card's dims and layer sizes must be those of the stored tensors."""
+    """The card's dims and layer sizes must be those of the stored tensors, and the tensors exactly the
+    policy's: nothing missing, nothing extra."""
+    wanted = set(GaussianActorCritic(card.obs_dim, card.act_dim, card.pi_hidden, card.vf_hidden).state_dict())
+    missing, extra = sorted(wanted - set(tensors)), sorted(set(tensors) - wanted)
+    if missing:
+        raise MiktError(f"{path}: tensor '{missing[0]}' is missing" + (f" (and {len(missing) - 1} more)"
+                                                                        if len(missing) > 1 else ""))
+    if extra:
+        raise MiktError(f"{path}: unexpected tensor '{extra[0]}' for the layers the card lists"
+                        + (f" (and {len(extra) - 1} more)" if len(extra) > 1 else ""))
+
     def shape(key: str) -> tuple[int, ...]:
-        if key not in tensors:
-            raise MiktError(f"{path}: tensor '{key}' is missing")
         return tuple(tensors[key].shape)
 
     expected = {"obs_normalizer.mean": (card.obs_dim,), "log_std": (card.act_dim,)}
@@ -80,9 +100,10 @@ def check_card_against_tensors(path: Path, card: TeacherCard, tensors: dict[str,
         got = shape(key)
         if got != want:
             raise MiktError(f"{path}: card disagrees with tensor '{key}': card implies {want}, tensor is {got}")
-    for net, hidden in (("pi", card.pi_hidden), ("vf", card.vf_hidden)):
-        if f"{net}.hidden.{len(hidden)}.weight" in tensors:
-            raise MiktError(f"{path}: card lists {len(hidden)} {net} hidden layers but the file has more")
+    spec = card.env_spec
+    if (spec.get("obs_dim"), spec.get("act_dim")) != (card.obs_dim, card.act_dim):
+        raise MiktError(f"{path}: card and tensors say obs {card.obs_dim} / act {card.act_dim} but its env "
+                        f"'{card.env}' has obs {spec.get('obs_dim')} / act {spec.get('act_dim')}")
 
 
 def read_teacher_card(path: Path) -> TeacherCard:
@@ -112,6 +133,10 @@ def load_teacher(registry: Path, ref: str) -> Teacher:
     """Load a verified teacher, frozen: normaliser statistics fixed, no gradients for its parameters."""
     path = resolve(registry, ref)
     card, policy = load_policy_file(path)
+    stored_as = (path.parent.name, int(path.stem[1:]))
+    if (card.name, card.version) != stored_as:
+        raise MiktError(f"{path}: the card names {card.ref} but the file is stored as "
+                        f"{stored_as[0]}@v{stored_as[1]} (moved or tampered)")
     policy.requires_grad_(False)
     policy.eval()
     return Teacher(card, path, policy)

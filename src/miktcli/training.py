@@ -4,6 +4,7 @@ marks interruptions, resumes, and finishes (publishing a teacher or saving a stu
 from __future__ import annotations
 
 import math
+import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -14,15 +15,34 @@ from miktcli.cards import code_version, package_versions
 from miktcli.envs import load_spec, make_env
 from miktcli.errors import MiktError
 from miktcli.ppo import PPOConfig, PPOTrainer
-from miktcli.runs import Run, create_run
+from miktcli.runs import Run, RunLock, create_run
+
+MAX_SEED = 2**32 - 1  # numpy's and torch's seeding range
+
+
+def check_registry_writable(registry: Path, *folders: str) -> None:
+    """Fail before any training if the registry cannot take the files a run will write at its end."""
+    for name in folders:
+        folder = Path(registry) / name
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=folder):
+                pass
+        except OSError as err:
+            raise MiktError(f"registry folder {folder} is not writable: {err.strerror or err}",
+                            hint="check its permissions and free space, or choose another --registry") from err
 
 
 def new_run(registry: Path, *, kind: str, env: str, method: str, seed: int, total_steps: int,
             config: dict[str, Any], command: str, teachers: list | None = None) -> Run:
+    """Validate everything a run needs, then create its folder. Nothing is created when a check fails."""
     ppo = PPOConfig.from_record(config.get("ppo", {}))
     if total_steps < ppo.batch_size:
         raise MiktError(f"--steps {total_steps} is less than one rollout ({ppo.batch_size} steps)")
+    if not 0 <= seed <= MAX_SEED:
+        raise MiktError(f"--seed {seed} is out of range: 0 to {MAX_SEED}")
     load_spec(env)  # fail on an unknown env before a run folder exists
+    check_registry_writable(registry, "runs", *(["teachers"] if kind == "teacher" else []))
     return create_run(
         registry, kind=kind, env=env, method=method, seed=seed, total_steps=total_steps, config=config,
         command=command, teachers=teachers or [], code_version=code_version(), packages=package_versions(),
@@ -30,45 +50,71 @@ def new_run(registry: Path, *, kind: str, env: str, method: str, seed: int, tota
 
 
 class Job:
-    """A run's agent and trainer, restored from its last checkpoint when there is one."""
+    """A run's agent and trainer, restored from its last checkpoint when there is one.
+
+    Use it as a context manager around everything from training to publishing: it holds the run's lock
+    (so no second process can train or resume the same run) and, on leaving, records how the run ended:
+    `interrupted` on Ctrl-C/SIGTERM, `failed` with the reason on any other exception."""
 
     def __init__(self, run: Run, registry: Path, build_agent: Callable[[Run, Path], torch.nn.Module]):
         self.run, self.registry = run, registry
-        torch.manual_seed(run.card.seed)
-        self.spec = load_spec(run.card.env)
-        self.agent = build_agent(run, registry)
-        self.config = PPOConfig.from_record(run.card.config.get("ppo", {}))
-        self.trainer = PPOTrainer(self.agent, lambda: make_env(self.spec), self.config, run.card.total_steps,
-                                  seed=run.card.seed)
-        self.best_return = -math.inf
-        if run.checkpoint_path.exists():
-            ckpt, tensors = run.load_checkpoint()
-            self.trainer.load_state(tensors, ckpt.progress)
-            self.best_return = ckpt.progress.get("best_return", -math.inf)
-            run.truncate_metrics(ckpt.iteration)
+        self.lock = RunLock(run).acquire()
+        try:
+            torch.manual_seed(run.card.seed)
+            self.spec = load_spec(run.card.env)
+            self.agent = build_agent(run, registry)
+            self.config = PPOConfig.from_record(run.card.config.get("ppo", {}))
+            self.trainer = PPOTrainer(self.agent, lambda: make_env(self.spec), self.config, run.card.total_steps,
+                                      seed=run.card.seed)
+            self.best_return = -math.inf
+            if run.checkpoint_path.exists():
+                ckpt, tensors = run.load_checkpoint()
+                try:
+                    self.trainer.load_state(tensors, ckpt.progress)
+                except ValueError as err:
+                    raise MiktError(f"{run.checkpoint_path}: {err}",
+                                    hint="the checkpoint is damaged or from another run") from err
+                self.best_return = ckpt.progress.get("best_return", -math.inf)
+                run.truncate_metrics(ckpt.iteration)
+        except BaseException as err:
+            self._record_end(err)
+            self.lock.release()
+            raise
+
+    def __enter__(self) -> Job:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self._record_end(exc)
+        self.close()
+
+    def _record_end(self, exc: BaseException | None) -> None:
+        if exc is None:
+            return
+        if isinstance(exc, KeyboardInterrupt):
+            self.run.save_card(status="interrupted")
+        else:
+            self.run.save_card(status="failed", error=f"{type(exc).__name__}: {exc}")
+
+    def close(self) -> None:
+        trainer = getattr(self, "trainer", None)
+        if trainer is not None:
+            trainer.close()
+        self.lock.release()
 
     def iterations(self) -> Iterator[dict[str, Any]]:
-        """Train to the end, checkpointing after every iteration. Ctrl-C marks the run interrupted."""
+        """Train to the end, checkpointing after every iteration."""
         run, trainer = self.run, self.trainer
         run.save_card(status="running", error=None)
-        try:
-            for metrics in trainer.run():
-                if math.isfinite(metrics["return_mean"]):
-                    self.best_return = max(self.best_return, metrics["return_mean"])
-                progress = {**trainer.progress_state(), "best_return": self.best_return}
-                # Checkpoint first: a metrics row never describes an iteration the checkpoint lacks.
-                run.save_checkpoint(trainer.state_tensors(), trainer.iteration, trainer.global_step, progress)
-                run.append_metrics(metrics)
-                run.save_card(steps_done=trainer.global_step)
-                yield metrics
-        except KeyboardInterrupt:
-            run.save_card(status="interrupted")
-            raise
-        except Exception as err:
-            run.save_card(status="failed", error=f"{type(err).__name__}: {err}")
-            raise
-        finally:
-            trainer.close()
+        for metrics in trainer.run():
+            if math.isfinite(metrics["return_mean"]):
+                self.best_return = max(self.best_return, metrics["return_mean"])
+            progress = {**trainer.progress_state(), "best_return": self.best_return}
+            # Checkpoint first: a metrics row never describes an iteration the checkpoint lacks.
+            run.save_checkpoint(trainer.state_tensors(), trainer.iteration, trainer.global_step, progress)
+            run.append_metrics(metrics)
+            run.save_card(steps_done=trainer.global_step)
+            yield metrics
 
     @property
     def final_return(self) -> float | None:

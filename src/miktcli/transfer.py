@@ -12,7 +12,7 @@ from pydantic import ValidationError
 from miktcli.cards import TeacherCard, TeacherRef, now
 from miktcli.checkpoint import save_with_card
 from miktcli.envs import load_spec, make_env
-from miktcli.errors import MiktError
+from miktcli.errors import MiktError, describe_validation_error
 from miktcli.evaluation import evaluate
 from miktcli.mikt import MiktConfig
 from miktcli.policies import ActorCritic, GaussianActorCritic
@@ -89,8 +89,7 @@ def start_transfer(
     try:
         mikt = MiktConfig(**(mikt_options or {}))
     except ValidationError as err:
-        first = err.errors()[0]
-        raise MiktError(f"bad MIKT option '{'.'.join(map(str, first['loc']))}': {first['msg']}") from err
+        raise MiktError(f"bad MIKT option: {describe_validation_error(err)}") from err
     config, refs = plan_transfer(registry, env=to, method=method, teacher_refs=teacher_refs, ppo=ppo, mikt=mikt,
                                  encoder_widths=encoder_widths, hidden=hidden)
     return new_run(registry, kind="transfer", env=to, method=method, seed=seed, total_steps=steps, config=config,

@@ -17,8 +17,8 @@ from miktcli.cli import runs as runs_cmd
 from miktcli.cli import study as study_cmd
 from miktcli.cli import teacher as teacher_cmd
 from miktcli.cli import transfer as transfer_cmd
-from miktcli.cli.console import debug_enabled, err
-from miktcli.errors import MiktError
+from miktcli.cli.console import debug_enabled, err, print_error
+from miktcli.errors import MiktError, describe_os_error
 
 
 class MiktGroup(TyperGroup):
@@ -30,9 +30,13 @@ class MiktGroup(TyperGroup):
         except MiktError as error:
             if debug_enabled():
                 raise
-            err.print(f"[bold red]Error:[/] {error}", markup=True, highlight=False)
-            if error.hint:
-                err.print(f"Hint: {error.hint}")
+            print_error(error, error.hint)
+            raise typer.Exit(1) from None
+        except OSError as error:  # permissions, a full disk, a file where a folder belongs: not a bug
+            if debug_enabled():
+                raise
+            known = describe_os_error(error)
+            print_error(known, known.hint)
             raise typer.Exit(1) from None
         except KeyboardInterrupt:
             err.print("Interrupted.")
@@ -42,8 +46,8 @@ class MiktGroup(TyperGroup):
         except Exception as error:  # an unexpected bug: still one line unless debugging
             if debug_enabled():
                 raise
-            err.print(f"[bold red]Error:[/] internal error: {type(error).__name__}: {error}")
-            err.print("Hint: run again with MIKT_DEBUG=1 for the traceback, and please report it.")
+            print_error(f"internal error: {type(error).__name__}: {error}",
+                        "run again with MIKT_DEBUG=1 for the traceback, and please report it.")
             raise typer.Exit(1) from None
 
 
@@ -89,5 +93,5 @@ def main() -> None:
     try:
         app()
     except MiktError as error:  # raised while building the command tree, outside MiktGroup.invoke
-        err.print(f"Error: {error}")
+        print_error(error, error.hint)
         sys.exit(1)

@@ -7,8 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from miktcli.cli.console import err, out, print_json
-from miktcli.envs import CentipedeSpec, load_all_specs, load_spec, make_env, model_facts
+from miktcli.cli.console import err, out, print_data, print_error, print_json
 
 app = typer.Typer(
     help="List, show and render environments.\n\nExamples:\n\n  mikt envs\n\n  mikt envs show centipede-six"
@@ -19,7 +18,7 @@ app = typer.Typer(
 
 
 def _family(spec) -> str:
-    return "centipede" if isinstance(spec, CentipedeSpec) else f"gymnasium ({spec.id})"
+    return "centipede" if spec.family == "centipede" else f"gymnasium ({spec.id})"
 
 
 @app.callback(invoke_without_command=True)
@@ -28,16 +27,22 @@ def list_envs(
     as_json: bool = typer.Option(False, "--json", help="Print the specs as JSON."),
 ) -> None:
     """List the environments (name, family, obs dim, act dim, notes)."""
+    from miktcli.envs.spec import scan_specs
+
     if ctx.invoked_subcommand is not None:
         return
-    specs = load_all_specs()
+    specs, bad = scan_specs()
     if as_json:
         print_json([s.model_dump() for s in specs])
-        return
-    table = Table("name", "family", "obs dim", "act dim", "notes")
-    for s in specs:
-        table.add_row(s.name, _family(s), str(s.obs_dim), str(s.act_dim), s.notes)
-    out.print(table)
+    else:
+        table = Table("name", "family", "obs dim", "act dim", "notes")
+        for s in specs:
+            table.add_row(s.name, _family(s), str(s.obs_dim), str(s.act_dim), s.notes)
+        out.print(table)
+    if bad:  # the good specs are listed; each bad file is named, and the exit code says something was wrong
+        for problem in bad[1:]:
+            print_error(problem)
+        raise bad[0]
 
 
 @app.command("show")
@@ -46,6 +51,8 @@ def show(
     as_json: bool = typer.Option(False, "--json", help="Print as JSON."),
 ) -> None:
     """Show one spec and the facts of its built model (bodies, joints, actuators)."""
+    from miktcli.envs import load_spec, make_env, model_facts
+
     spec = load_spec(name)
     env = make_env(spec)
     facts = model_facts(env)
@@ -70,6 +77,7 @@ def render(
     seed: int = typer.Option(0, help="Reset seed."),
 ) -> None:
     """Render one offscreen frame after a reset (headless, no GPU needed)."""
+    from miktcli.envs import make_env
     from miktcli.render import render_frame, save_png
 
     env = make_env(name, render_mode="rgb_array")
@@ -80,4 +88,4 @@ def render(
         env.close()
     save_png(frame, out_path)
     err.print(f"wrote {out_path} ({frame.shape[1]}x{frame.shape[0]})")
-    print(out_path)
+    print_data(out_path)

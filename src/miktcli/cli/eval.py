@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from miktcli.cli.common import registry_option, resolve_registry, setup_torch
-from miktcli.cli.console import err, print_json
+from miktcli.cli.console import err, print_data, print_json
 
 HELP = """Evaluate a teacher (NAME or NAME@vN) or a run's student (runN).
 
@@ -64,5 +64,5 @@ def eval_command(
     if as_json:
         print_json(summary)
         return
-    print(f"{label} on {env_name}: return {summary['return_mean']:.1f} ± {summary['return_std']:.1f}, "
+    print_data(f"{label} on {env_name}: return {summary['return_mean']:.1f} ± {summary['return_std']:.1f}, "
           f"length {summary['length_mean']:.0f} ± {summary['length_std']:.0f} over {episodes} episodes")

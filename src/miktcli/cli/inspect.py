@@ -60,13 +60,15 @@ def inspect(
         return
     run = open_run(reg, target)
     metrics = run.read_metrics()
+    if run.damaged_metric_lines:
+        err.print(f"warning: skipped {run.damaged_metric_lines} damaged line(s) in {run.metrics_path}")
     if as_json:
-        print_json({"card": run.card.model_dump(mode="json"), "metrics": metrics})
+        print_json({"card": {**run.card.model_dump(mode="json"), "status": run.status}, "metrics": metrics})
         return
     if not (coupling or curve):
         from miktcli.cli.teacher import render_card
 
-        render_card(run.card.model_dump(mode="json", exclude={"config"}))
+        render_card({**run.card.model_dump(mode="json", exclude={"config"}), "status": run.status})
         err.print("Hint: --coupling for the mixing weights, --curve for the learning curve, --json for all.")
         return
     if coupling:
@@ -75,10 +77,10 @@ def inspect(
             raise MiktError(f"run '{run.id}' ({run.card.method}) has no mixing weights: only mikt runs do")
         table = Table("steps", *keys, "teacher")
         for r in _sampled(metrics, rows):
-            table.add_row(f"{r['steps']:,}", *(f"{r[k]:.3f}" for k in keys),
+            table.add_row(f"{r['steps']:,}", *("—" if r.get(k) is None else f"{r[k]:.3f}" for k in keys),
                           "on" if r.get("teacher_active", 1.0) else "dropped")
         out.print(table)
-        series = {k: [(r["steps"], r[k]) for r in metrics] for k in keys}
+        series = {k: [(r["steps"], r[k]) for r in metrics if r.get(k) is not None] for k in keys}
         out.print(text_plot(series, y_range=(0.0, 1.0)))
         if plot:
             png_plot(series, plot, f"{run.id}: student mixing weights", "p (student)")
@@ -86,11 +88,11 @@ def inspect(
     if curve:
         table = Table("steps", "mean return (last 100 ep.)", "mean length", "steps/s")
         for r in _sampled(metrics, rows):
-            ret = "—" if r["return_mean"] is None else f"{r['return_mean']:.1f}"
-            length = "—" if r["length_mean"] is None else f"{r['length_mean']:.0f}"
-            table.add_row(f"{r['steps']:,}", ret, length, f"{r['steps_per_sec']:.0f}")
+            ret, length, sps = (r.get(k) for k in ("return_mean", "length_mean", "steps_per_sec"))
+            table.add_row(f"{r['steps']:,}", "—" if ret is None else f"{ret:.1f}",
+                          "—" if length is None else f"{length:.0f}", "—" if sps is None else f"{sps:.0f}")
         out.print(table)
-        series = {"return": [(r["steps"], r["return_mean"]) for r in metrics if r["return_mean"] is not None]}
+        series = {"return": [(r["steps"], r["return_mean"]) for r in metrics if r.get("return_mean") is not None]}
         out.print(text_plot(series))
         if plot and not coupling:
             png_plot(series, plot, f"{run.id}: {run.card.method} on {run.card.env}", "mean episode return")

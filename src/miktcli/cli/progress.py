@@ -9,7 +9,7 @@ from typing import Any
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from miktcli.cli.console import err
+from miktcli.cli.console import clean, err
 
 
 def _fmt(value: float | None) -> str:
@@ -20,12 +20,13 @@ def track_training(metrics: Iterable[dict[str, Any]], total_steps: int, start_st
                    label: str) -> Iterator[dict[str, Any]]:
     if err.is_terminal:
         progress = Progress(
-            TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TextColumn("steps"),
+            TextColumn("{task.description}", style="bold", markup=False), BarColumn(), MofNCompleteColumn(),
+            TextColumn("steps"),
             TextColumn("{task.fields[sps]} steps/s"), TextColumn("return {task.fields[ret]}"),
             TimeRemainingColumn(), console=err, transient=False,
         )
         with progress:
-            task = progress.add_task(label, total=total_steps, completed=start_steps, sps="—", ret="—")
+            task = progress.add_task(clean(label), total=total_steps, completed=start_steps, sps="—", ret="—")
             for m in metrics:
                 progress.update(task, completed=m["steps"], sps=f"{m['steps_per_sec']:.0f}",
                                 ret=_fmt(m["return_mean"]))

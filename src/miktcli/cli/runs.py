@@ -19,11 +19,13 @@ def runs(
     from miktcli.runs import list_runs
 
     reg = resolve_registry(registry)
-    found = list_runs(reg)
+    found, damaged = list_runs(reg)
     if as_json:
-        print_json([r.card.model_dump(mode="json") for r in found])
+        # `status` is the live one: `stale` where the card says running but no process holds the run's lock.
+        print_json([{**r.card.model_dump(mode="json"), "status": r.status} for r in found]
+                   + [{"run_id": run_id, "error": str(problem)} for run_id, problem in damaged])
         return
-    if not found:
+    if not found and not damaged:
         err.print(f"no runs in {reg}")
         return
     table = Table("run", "kind", "method", "from", "env", "status", "steps", "result", "created")
@@ -37,5 +39,10 @@ def runs(
         else:
             summary = "—"
         table.add_row(c.run_id, c.kind, c.method, ", ".join(f"{t.name}@v{t.version}" for t in c.teachers) or "—",
-                      c.env, c.status, f"{c.steps_done:,}/{c.total_steps:,}", summary, str(c.created)[:19])
+                      c.env, r.status, f"{c.steps_done:,}/{c.total_steps:,}", summary, str(c.created)[:19])
+    for run_id, problem in damaged:
+        table.add_row(run_id, "", "", "", "", "damaged", "", str(problem), "")
     out.print(table)
+    if any(r.status == "stale" for r in found):
+        err.print("stale: the run's process is gone (killed or crashed); its last checkpoint is intact and "
+                  "`--resume RUN` continues it.")

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from miktcli.cli.common import command_line, registry_option, resolve_registry, setup_torch
-from miktcli.cli.console import err
+from miktcli.cli.console import err, print_data
 
 HELP = """Run a study grid (pairs × methods × seeds), resumably, and write results.md with plots.
 
@@ -44,4 +44,4 @@ def study(
                 err.print(f"{key}: {what} {run.id}")
     path = st.report()
     err.print(f"wrote {path}")
-    print(path)
+    print_data(path)

@@ -6,9 +6,10 @@ from pathlib import Path
 
 import typer
 from rich.table import Table
+from rich.text import Text
 
 from miktcli.cli.common import command_line, registry_option, resolve_registry, setup_torch
-from miktcli.cli.console import err, out, print_json
+from miktcli.cli.console import err, out, print_data, print_json
 from miktcli.cli.progress import track_training
 from miktcli.errors import MiktError
 
@@ -34,7 +35,7 @@ def parse_hidden(text: str) -> list[int]:
 def train(
     env: str = typer.Argument(None, help="Environment name (see `mikt envs`).", show_default=False),
     steps: int = typer.Option(2_000_000, "--steps", min=1, help="Environment steps (the paper: 2M)."),
-    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1, help="Random seed."),
     name: str = typer.Option(None, "--name", help="Teacher name in the registry (default: the env's name)."),
     num_envs: int = typer.Option(1, "--num-envs", min=1, help="Synchronous environments (the paper: 1)."),
     hidden: str = typer.Option("64,64", "--hidden", help="Hidden sizes of policy and value MLPs."),
@@ -44,7 +45,7 @@ def train(
     """Train a teacher with PPO and add it to the registry as a new version."""
     from miktcli.methods import build_agent
     from miktcli.ppo import PPOConfig
-    from miktcli.runs import open_resumable
+    from miktcli.runs import open_resumable, open_run
     from miktcli.teachers import check_name
     from miktcli.training import Job, new_run, publish_teacher_from_job
 
@@ -55,26 +56,27 @@ def train(
     else:
         if env is None:
             raise MiktError("give an environment name, or --resume RUN")
-        teacher_name = check_name(name or env)
+        teacher_name = check_name(env if name is None else name)
         sizes = parse_hidden(hidden)
         config = {"ppo": PPOConfig(num_envs=num_envs).model_dump(), "pi_hidden": sizes, "vf_hidden": sizes,
                   "teacher_name": teacher_name}
         run = new_run(reg, kind="teacher", env=env, method="ppo", seed=seed, total_steps=steps, config=config,
                       command=command_line())
-    job = Job(run, reg, build_agent)
-    err.print(f"{run.id}: teacher on {run.card.env}, {run.card.total_steps} steps, seed {run.card.seed} "
-              f"→ {run.path}")
     try:
-        for _ in track_training(job.iterations(), run.card.total_steps, job.trainer.global_step, run.id):
-            pass
+        with Job(run, reg, build_agent) as job:
+            err.print(f"{run.id}: teacher on {run.card.env}, {run.card.total_steps} steps, seed {run.card.seed} "
+                      f"→ {run.path}")
+            for _ in track_training(job.iterations(), run.card.total_steps, job.trainer.global_step, run.id):
+                pass
+            card = publish_teacher_from_job(job, run.card.config["teacher_name"])
     except KeyboardInterrupt:
+        steps_done = open_run(reg, run.id).card.steps_done
         raise MiktError(
-            f"interrupted; {run.id} keeps its last complete checkpoint "
-            f"({run.card.steps_done} steps)", hint=f"continue with: mikt teacher train --resume {run.id}",
+            f"interrupted; {run.id} keeps its last complete checkpoint ({steps_done} steps)",
+            hint=f"continue with: mikt teacher train --resume {run.id}",
         ) from None
-    card = publish_teacher_from_job(job, run.card.config["teacher_name"])
     err.print(f"final mean return {card.final_return}, best {card.best_return}")
-    print(card.ref)
+    print_data(card.ref)
 
 
 def _teacher_rows(reg: Path) -> list[dict]:
@@ -111,7 +113,7 @@ def list_teachers(
     for r in rows:
         c = r["card"]
         if c is None:
-            table.add_row(r["ref"], f"[red]unreadable: {r['error']}[/]", "", "", "", "", "", "")
+            table.add_row(r["ref"], Text(f"unreadable: {r['error']}", style="red"), "", "", "", "", "", "")
             continue
         ret = "—" if c["final_return"] is None else f"{c['final_return']:.1f}"
         table.add_row(r["ref"], c["env"], str(c["obs_dim"]), str(c["act_dim"]),

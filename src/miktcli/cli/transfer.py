@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from miktcli.cli.common import command_line, registry_option, resolve_registry, setup_torch
-from miktcli.cli.console import err, print_json
+from miktcli.cli.console import err, print_data, print_json
 from miktcli.cli.progress import track_training
 from miktcli.errors import MiktError
 
@@ -35,15 +35,15 @@ def train_transfer_run(run, registry: Path, eval_episodes: int) -> dict:
     from miktcli.training import Job
     from miktcli.transfer import finish_transfer
 
-    job = Job(run, registry, build_agent)
     sources = ", ".join(f"{t.name}@v{t.version}" for t in run.card.teachers) or "scratch"
-    err.print(f"{run.id}: {run.card.method} {sources} → {run.card.env}, {run.card.total_steps} steps, "
-              f"seed {run.card.seed} → {run.path}")
     try:
-        for _ in track_training(job.iterations(), run.card.total_steps, job.trainer.global_step, run.id):
-            pass
-        err.print(f"{run.id}: evaluating the final student ({eval_episodes} episodes)")
-        return finish_transfer(job, eval_episodes)
+        with Job(run, registry, build_agent) as job:
+            err.print(f"{run.id}: {run.card.method} {sources} → {run.card.env}, {run.card.total_steps} steps, "
+                      f"seed {run.card.seed} → {run.path}")
+            for _ in track_training(job.iterations(), run.card.total_steps, job.trainer.global_step, run.id):
+                pass
+            err.print(f"{run.id}: evaluating the final student ({eval_episodes} episodes)")
+            return finish_transfer(job, eval_episodes)
     except KeyboardInterrupt:
         raise MiktError(f"interrupted; {run.id} keeps its last complete checkpoint",
                         hint=f"continue with: mikt transfer --resume {run.id}") from None
@@ -54,7 +54,7 @@ def transfer(
     to: str = typer.Option(None, "--to", help="Target environment."),
     method: str = typer.Option("mikt", "--method", help="mikt | vpg (PPO from scratch) | mlpp."),
     steps: int = typer.Option(2_000_000, "--steps", min=1, help="Environment steps (the paper: 2M)."),
-    seed: int = typer.Option(0, "--seed"),
+    seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1),
     mi: bool = typer.Option(True, "--mi/--no-mi", help="Train the encoder with L_MI ('w/o MI' ablation)."),
     rl_encoder_grad: bool = typer.Option(
         True, "--rl-encoder-grad/--no-rl-encoder-grad", help="PPO gradient into the encoder (ablation: off)."),
@@ -113,4 +113,4 @@ def transfer(
     if "final_mixing" in result:
         weights = ", ".join(f"{k}={v:.3f}" for k, v in result["final_mixing_learned"].items())
         err.print(f"final student weights {weights}")
-    print(run.id)
+    print_data(run.id)

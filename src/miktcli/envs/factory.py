@@ -9,7 +9,7 @@ import gymnasium as gym
 
 from miktcli.envs.centipede import CentipedeEnv
 from miktcli.envs.mujoco_warnings import capture_mujoco_warnings
-from miktcli.envs.spec import CentipedeSpec, GymnasiumSpec, load_all_specs, load_spec
+from miktcli.envs.spec import CentipedeSpec, GymnasiumSpec, load_spec, scan_specs
 from miktcli.errors import MiktError
 
 Spec = CentipedeSpec | GymnasiumSpec
@@ -26,14 +26,34 @@ def _build(spec: Spec, render_mode: str | None) -> gym.Env:
         warnings.filterwarnings("ignore", message=".*is out of date.*")
         warnings.filterwarnings("ignore", category=DeprecationWarning)
         try:
-            return gym.make(
+            env = gym.make(
                 spec.id, max_episode_steps=spec.max_episode_steps, render_mode=render_mode,
                 disable_env_checker=True, **spec.kwargs,
             )
         except gym.error.Error as err:
             raise MiktError(f"environment '{spec.name}': gymnasium cannot make '{spec.id}': {err}") from err
-        except TypeError as err:
-            raise MiktError(f"environment '{spec.name}': bad kwargs for '{spec.id}': {err}") from err
+        except Exception as err:  # noqa: BLE001 - kwargs reach the env's own constructor, which may fail anyhow
+            raise MiktError(f"environment '{spec.name}': '{spec.id}' fails with these kwargs: "
+                            f"{type(err).__name__}: {err}") from err
+    _check_continuous_mujoco(spec, env)
+    return env
+
+
+def _check_continuous_mujoco(spec: Spec, env: gym.Env) -> None:
+    """PPO here drives MuJoCo bodies with a Gaussian policy: a discrete or non-MuJoCo env cannot be used."""
+    import mujoco
+
+    space = env.action_space
+    problem = None
+    if not isinstance(space, gym.spaces.Box) or len(space.shape) != 1:
+        problem = f"its action space is {type(space).__name__}, not a continuous vector (Box)"
+    elif not isinstance(env.observation_space, gym.spaces.Box) or len(env.observation_space.shape) != 1:
+        problem = "its observation space is not a flat vector (Box)"
+    elif not isinstance(getattr(env.unwrapped, "model", None), mujoco.MjModel):
+        problem = "it is not a MuJoCo environment"
+    if problem:
+        env.close()
+        raise MiktError(f"environment '{spec.name}': '{getattr(spec, 'id', spec.name)}' cannot be used: {problem}")
 
 
 def env_dims(env: gym.Env) -> tuple[int, int]:
@@ -85,7 +105,7 @@ def _make_registered(name: str, render_mode: str | None = None, **_: Any) -> gym
 def register_with_gymnasium() -> list[str]:
     """Register every spec as `mikt/NAME`, so `gymnasium.make("mikt/centipede-six")` works."""
     ids = []
-    for spec in load_all_specs():
+    for spec in scan_specs()[0]:  # a bad spec file is reported by `mikt envs`; it never blocks the good ones
         env_id = f"{GYM_NAMESPACE}/{spec.name}"
         if env_id not in gym.registry:
             gym.register(id=env_id, entry_point=_make_registered, kwargs={"name": spec.name})

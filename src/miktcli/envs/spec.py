@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import os
+import re
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
-from miktcli.errors import MiktError
+from miktcli.errors import MiktError, describe_validation_error
+
+SPEC_NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
+MAX_LEGS = 40  # NerveNet's largest centipede; the model builder nests one body per torso
 
 
 class _SpecBase(BaseModel):
@@ -26,7 +30,7 @@ class CentipedeSpec(_SpecBase):
     """A NerveNet centipede generated from its leg count (see envs/centipede_model.py)."""
 
     family: Literal["centipede"]
-    legs: int = Field(ge=4, description="number of legs, even; legs/2 torsos")
+    legs: int = Field(ge=4, le=MAX_LEGS, description="number of legs, even; legs/2 torsos")
     crippled_legs: list[int] = Field(default_factory=list, description="legs whose motors are removed")
 
     @model_validator(mode="after")
@@ -45,8 +49,15 @@ class GymnasiumSpec(_SpecBase):
     """An environment that gymnasium already ships, made with `gymnasium.make(id, **kwargs)`."""
 
     family: Literal["gymnasium"]
-    id: str
+    id: str = Field(pattern=r"^[A-Za-z0-9_./-]+-v\d+$", description="a registered gymnasium id such as Ant-v4")
     kwargs: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _no_module_import(self) -> GymnasiumSpec:
+        # gymnasium imports `module` for an id `module:Env`: a spec file must never run code.
+        if ":" in self.id:
+            raise ValueError(f"id '{self.id}': 'module:Env' ids are refused (they make gymnasium import code)")
+        return self
 
 
 EnvSpec = Annotated[CentipedeSpec | GymnasiumSpec, Field(discriminator="family")]
@@ -70,25 +81,15 @@ def envspecs_dir() -> Path:
     return here.parents[1] / "_envspecs"
 
 
-def _describe_validation_error(path: Path, err: ValidationError) -> str:
-    first = err.errors()[0]
-    loc = ".".join(str(p) for p in first["loc"] if p not in ("centipede", "gymnasium")) or "(file)"
-    if first["type"] == "union_tag_invalid":
-        return f"{path}: field 'family': unknown family, expected 'centipede' or 'gymnasium'"
-    if first["type"] == "union_tag_not_found":
-        return f"{path}: field 'family': missing"
-    return f"{path}: field '{loc}': {first['msg']}"
-
-
 def load_spec_file(path: Path) -> CentipedeSpec | GymnasiumSpec:
     try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as err:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise MiktError(f"{path}: not valid TOML: {err}") from err
     try:
         spec = parse_spec(data)
     except ValidationError as err:
-        raise MiktError(_describe_validation_error(path, err)) from err
+        raise MiktError(f"{path}: {describe_validation_error(err)}") from err
     if spec.name != path.stem:
         raise MiktError(f"{path}: field 'name': '{spec.name}' must equal the file name '{path.stem}'")
     return spec
@@ -101,6 +102,8 @@ def spec_names(directory: Path | None = None) -> list[str]:
 
 def load_spec(name: str, directory: Path | None = None) -> CentipedeSpec | GymnasiumSpec:
     directory = directory or envspecs_dir()
+    if not SPEC_NAME_RE.match(name):
+        raise MiktError(f"invalid environment name '{name}': lowercase letters, digits, '.', '_' and '-'")
     path = directory / f"{name}.toml"
     if not path.is_file():
         known = ", ".join(spec_names(directory)) or "(none)"
@@ -109,5 +112,20 @@ def load_spec(name: str, directory: Path | None = None) -> CentipedeSpec | Gymna
 
 
 def load_all_specs(directory: Path | None = None) -> list[CentipedeSpec | GymnasiumSpec]:
+    """Every valid spec; raises on the first bad one (see `scan_specs` to list good and bad together)."""
+    good, bad = scan_specs(directory)
+    if bad:
+        raise bad[0]
+    return good
+
+
+def scan_specs(directory: Path | None = None) -> tuple[list[CentipedeSpec | GymnasiumSpec], list[MiktError]]:
+    """The valid specs, and one error per file that is not (a bad file never hides the good ones)."""
     directory = directory or envspecs_dir()
-    return [load_spec_file(p) for p in sorted(directory.glob("*.toml"))]
+    good, bad = [], []
+    for path in sorted(directory.glob("*.toml")):
+        try:
+            good.append(load_spec_file(path))
+        except MiktError as err:
+            bad.append(err)
+    return good, bad

@@ -8,9 +8,31 @@ truncated episode can be bootstrapped. No dummy transition ever reaches the roll
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import gymnasium as gym
+import mujoco
 import numpy as np
+
+_INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
+# Derived quantities that reward code reads *before* the next mj_step (Ant's and the centipede's "x before").
+# After mj_step they describe the last sub-step's start, not the integrated state, so a resumed env gets the
+# saved values back rather than fresh ones from mj_forward: that is what makes a resume bit-exact.
+_STALE_DERIVED = ("xpos", "xquat", "xipos", "geom_xpos", "subtree_com")
+
+
+def _time_limit(env: gym.Env) -> Any:
+    """The object that counts the episode's steps: gymnasium's TimeLimit wrapper, or the env itself."""
+    layer = env
+    while isinstance(layer, gym.Wrapper):
+        if isinstance(layer, gym.wrappers.TimeLimit):
+            return layer
+        layer = layer.env
+    return layer
+
+
+def _elapsed_attr(counter: Any) -> str:
+    return "_elapsed_steps" if isinstance(counter, gym.wrappers.TimeLimit) else "_elapsed"
 
 
 @dataclass
@@ -63,6 +85,40 @@ class SyncEnvs:
         self._obs = next_obs
         result.obs = next_obs
         return result
+
+    # --- state for an exact resume ---------------------------------------------------------------------
+    def state(self) -> tuple[dict[str, np.ndarray], list[dict[str, Any]]]:
+        """Everything the next step depends on: arrays (for safetensors) and small JSON facts."""
+        arrays: dict[str, np.ndarray] = {"obs": self._obs.copy(), "returns": self._returns.copy(),
+                                         "lengths": self._lengths.copy()}
+        facts = []
+        for i, env in enumerate(self.envs):
+            u = env.unwrapped
+            physics = np.empty(mujoco.mj_stateSize(u.model, _INTEGRATION))
+            mujoco.mj_getState(u.model, u.data, physics, _INTEGRATION)
+            arrays[f"physics.{i}"] = physics
+            for name in _STALE_DERIVED:
+                arrays[f"{name}.{i}"] = getattr(u.data, name).copy()
+            counter = _time_limit(env)
+            facts.append({"rng": u.np_random.bit_generator.state,
+                          "elapsed": int(getattr(counter, _elapsed_attr(counter)) or 0)})
+        return arrays, facts
+
+    def load_state(self, arrays: dict[str, np.ndarray], facts: list[dict[str, Any]]) -> None:
+        if len(facts) != self.num:
+            raise ValueError(f"saved state is for {len(facts)} envs, this run has {self.num}")
+        for i, (env, fact) in enumerate(zip(self.envs, facts, strict=True)):
+            u = env.unwrapped
+            mujoco.mj_setState(u.model, u.data, arrays[f"physics.{i}"], _INTEGRATION)
+            mujoco.mj_forward(u.model, u.data)
+            for name in _STALE_DERIVED:
+                getattr(u.data, name)[...] = arrays[f"{name}.{i}"]
+            u.np_random.bit_generator.state = fact["rng"]
+            counter = _time_limit(env)
+            setattr(counter, _elapsed_attr(counter), fact["elapsed"])
+        self._obs = arrays["obs"].copy()
+        self._returns = arrays["returns"].copy()
+        self._lengths = arrays["lengths"].copy()
 
     def close(self) -> None:
         for env in self.envs:
