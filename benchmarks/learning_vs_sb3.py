@@ -33,6 +33,8 @@ from miktcli.policies import GaussianActorCritic
 from miktcli.ppo import PPOConfig, PPOTrainer
 
 RESULTS = Path(__file__).resolve().parent / "results" / "learning-vs-sb3.jsonl"
+# Curve points: steps, training return, then (recorded since the investigation began) these per-update values.
+DIAGNOSTICS = ("explained_variance", "value_loss", "approx_kl", "clipfrac", "log_std_mean", "reward_scale")
 EVAL_SEED = 10_000  # evaluation episodes never reuse training seeds
 
 
@@ -55,7 +57,9 @@ def train_mikt(env_name: str, steps: int, seed: int, overrides: dict, episodes: 
     trainer = PPOTrainer(agent, lambda: make_env(env_name), PPOConfig(**overrides), steps, seed)
     curve = []
     for m in trainer.run():
-        curve.append((m["steps"], m["return_mean"], m["explained_variance"], m["loss_value"], m["approx_kl"]))
+        # (steps, return, then diagnostics to set beside SB3's; see DIAGNOSTICS)
+        curve.append((m["steps"], m["return_mean"], m["explained_variance"], m["loss_value"], m["approx_kl"],
+                      m["clipfrac"], m["log_std_mean"], float(np.sqrt(trainer.reward_scaler.var[0]))))
     trainer.close()
     agent.obs_normalizer.frozen = True
     with torch.no_grad():
@@ -93,7 +97,24 @@ def train_sb3(env_name: str, steps: int, seed: int, episodes: int) -> dict:
             ret = float(np.mean([e["r"] for e in eps])) if eps else float("nan")
             self.curve.append([self.num_timesteps, ret])
 
+        def on_train_end_of_iteration(self) -> None:
+            # The logger holds the last update's values; attach them to that iteration's point. SB3's value
+            # loss is its own form (the clipped prediction's squared error, no 0.5): compare trends, not levels.
+            logged = self.model.logger.name_to_value
+            values = [logged.get(f"train/{k}") for k in ("explained_variance", "value_loss", "approx_kl",
+                                                          "clip_fraction")]
+            log_std = self.model.policy.log_std.detach().mean()
+            self.curve[-1] += [None if v is None else float(v) for v in values]
+            self.curve[-1] += [float(log_std), float(np.sqrt(venv.ret_rms.var))]
+
     cb = Curve()
+    original_train = model.train
+
+    def train_and_record() -> None:
+        original_train()
+        cb.on_train_end_of_iteration()
+
+    model.train = train_and_record
     model.learn(total_timesteps=steps, callback=cb)
     # SB3 records the rollout's stats on the next rollout start; the last point is read after learn().
     venv.training, venv.norm_reward = False, False

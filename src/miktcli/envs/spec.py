@@ -8,11 +8,12 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator, model_validator
 
 from miktcli.errors import MiktError, describe_validation_error
 
 SPEC_NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
+GYM_ID_RE = re.compile(r"^[A-Za-z0-9_./-]+-v\d+$")
 MAX_LEGS = 40  # NerveNet's largest centipede; the model builder nests one body per torso
 
 
@@ -49,15 +50,18 @@ class GymnasiumSpec(_SpecBase):
     """An environment that gymnasium already ships, made with `gymnasium.make(id, **kwargs)`."""
 
     family: Literal["gymnasium"]
-    id: str = Field(pattern=r"^[A-Za-z0-9_./-]+-v\d+$", description="a registered gymnasium id such as Ant-v4")
+    id: str = Field(description="a registered gymnasium id such as Ant-v4")
     kwargs: dict[str, Any] = Field(default_factory=dict)
 
-    @model_validator(mode="after")
-    def _no_module_import(self) -> GymnasiumSpec:
-        # gymnasium imports `module` for an id `module:Env`: a spec file must never run code.
-        if ":" in self.id:
-            raise ValueError(f"id '{self.id}': 'module:Env' ids are refused (they make gymnasium import code)")
-        return self
+    @field_validator("id")
+    @classmethod
+    def _registered_id_only(cls, value: str) -> str:
+        # gymnasium imports `module` for an id `module:Env`: a spec file must never make it run code.
+        if ":" in value:
+            raise ValueError(f"'{value}': 'module:Env' ids are refused (they make gymnasium import code)")
+        if not GYM_ID_RE.match(value):
+            raise ValueError(f"'{value}': expected a registered gymnasium id such as Ant-v4")
+        return value
 
 
 EnvSpec = Annotated[CentipedeSpec | GymnasiumSpec, Field(discriminator="family")]
