@@ -2,7 +2,7 @@
 
 import os
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 # MuJoCo picks its GL backend when it is first imported. Without a display, GLFW cannot open a
 # context, so default to Mesa's EGL (works on CPU-only machines); an explicit MUJOCO_GL wins.
