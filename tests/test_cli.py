@@ -165,3 +165,10 @@ def test_checkpoints_carry_the_run_card(registry):
     ckpt, tensors = open_run(registry, "run1").load_checkpoint()
     assert ckpt.run.run_id == "run1" and ckpt.run.config["ppo"]["n_steps"] == 2048
     assert "agent.obs_normalizer.mean" in tensors and "optim.exp_avg" in tensors
+
+
+def test_steps_round_up_to_whole_rollouts_and_say_so(registry):
+    r = mikt("transfer", "--to", "hopper", "--method", "vpg", "--steps", 3000, "--eval-episodes", 1)
+    assert "--steps 3,000 is not a whole number of rollouts: training 4,096 steps" in r.output
+    card = json.loads(mikt("runs", "--json").stdout)[0]
+    assert card["total_steps"] == 4096 and card["steps_done"] == 4096

@@ -20,6 +20,12 @@ from miktcli.runs import Run, RunLock, create_run
 MAX_SEED = 2**32 - 1  # numpy's and torch's seeding range
 
 
+def whole_rollouts(steps: int, batch_size: int) -> int:
+    """A budget rounded up to whole rollouts: a run never trains fewer steps than asked (the card says how
+    many it trains; 2M steps → 977 rollouts of 2048 = 2,000,896)."""
+    return -(-steps // batch_size) * batch_size
+
+
 def check_registry_writable(registry: Path, *folders: str) -> None:
     """Fail before any training if the registry cannot take the files a run will write at its end."""
     for name in folders:
@@ -37,8 +43,9 @@ def new_run(registry: Path, *, kind: str, env: str, method: str, seed: int, tota
             config: dict[str, Any], command: str, teachers: list | None = None) -> Run:
     """Validate everything a run needs, then create its folder. Nothing is created when a check fails."""
     ppo = PPOConfig.from_record(config.get("ppo", {}))
-    if total_steps < ppo.batch_size:
-        raise MiktError(f"--steps {total_steps} is less than one rollout ({ppo.batch_size} steps)")
+    if total_steps < 1:
+        raise MiktError(f"--steps {total_steps}: must be at least 1")
+    total_steps = whole_rollouts(total_steps, ppo.batch_size)
     if not 0 <= seed <= MAX_SEED:
         raise MiktError(f"--seed {seed} is out of range: 0 to {MAX_SEED}")
     load_spec(env)  # fail on an unknown env before a run folder exists

@@ -26,6 +26,13 @@ def command_line() -> str:
     return shlex.join(["mikt", *sys.argv[1:]])
 
 
+def note_rounding(asked: int, planned: int) -> None:
+    if planned != asked:
+        from miktcli.cli.console import err
+
+        err.print(f"--steps {asked:,} is not a whole number of rollouts: training {planned:,} steps")
+
+
 def setup_torch() -> None:
     import torch
 

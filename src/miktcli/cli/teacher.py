@@ -8,7 +8,7 @@ import typer
 from rich.table import Table
 from rich.text import Text
 
-from miktcli.cli.common import command_line, registry_option, resolve_registry, setup_torch
+from miktcli.cli.common import command_line, note_rounding, registry_option, resolve_registry, setup_torch
 from miktcli.cli.console import err, out, print_data, print_json
 from miktcli.cli.progress import track_training
 from miktcli.errors import MiktError
@@ -62,6 +62,7 @@ def train(
                   "teacher_name": teacher_name}
         run = new_run(reg, kind="teacher", env=env, method="ppo", seed=seed, total_steps=steps, config=config,
                       command=command_line())
+        note_rounding(steps, run.card.total_steps)
     try:
         with Job(run, reg, build_agent) as job:
             err.print(f"{run.id}: teacher on {run.card.env}, {run.card.total_steps} steps, seed {run.card.seed} "

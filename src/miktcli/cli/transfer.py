@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from miktcli.cli.common import command_line, registry_option, resolve_registry, setup_torch
+from miktcli.cli.common import command_line, note_rounding, registry_option, resolve_registry, setup_torch
 from miktcli.cli.console import err, print_data, print_json
 from miktcli.cli.progress import track_training
 from miktcli.errors import MiktError
@@ -101,6 +101,7 @@ def transfer(
             encoder_widths=list(encoder_width) if encoder_width else None,
             hidden=parse_hidden(hidden) if hidden else None,
         )
+        note_rounding(steps, run.card.total_steps)
     result = train_transfer_run(run, reg, eval_episodes)
     if as_json:
         print_json({"run": run.id, **result})
