@@ -4,7 +4,8 @@
     python benchmarks/train_teachers.py hopper     # just one
 
 Each teacher is `mikt teacher train ENV --steps N --seed S`; a run that was interrupted is resumed with
-`--resume`, a finished one is skipped. Learning curves are copied to benchmarks/results/teachers/.
+`--resume`, a finished one is skipped. Learning curves are copied to benchmarks/results/teachers/v2/ (the
+teachers of mikt 0.2: raw actions, the paper's 2M budget; v1's curves stay in benchmarks/results/teachers/).
 """
 
 from __future__ import annotations
@@ -18,12 +19,13 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 REGISTRY = Path(os.environ.get("MIKT_REGISTRY", ROOT / "registry"))
-RESULTS = Path(os.environ.get("MIKT_RESULTS", ROOT / "benchmarks" / "results")) / "teachers"
-JOBS = [  # (env, steps, seed)
-    ("hopper", 1_000_000, 0),
-    ("centipede-four", 2_000_000, 0),
-    ("centipede-six", 2_000_000, 0),
-    ("ant", 2_000_000, 0),
+RESULTS = Path(os.environ.get("MIKT_RESULTS", ROOT / "benchmarks" / "results")) / "teachers" / "v2"
+STEPS = 2_000_896  # the paper's 2M, as whole 2048-step rollouts (what `--steps 2000000` trains)
+JOBS = [  # (env, steps, seed), in the order the paper-scale study needs them
+    ("centipede-four", STEPS, 0),
+    ("centipede-six", STEPS, 0),
+    ("ant", STEPS, 0),
+    ("hopper", STEPS, 0),
 ]
 
 
