@@ -23,7 +23,7 @@ import mujoco
 import torch
 
 from miktcli.envs import load_spec, make_env
-from miktcli.mikt import MiktActorCritic, MiktConfig
+from miktcli.methods.mikt import MiktActorCritic, MiktConfig
 from miktcli.policies import GaussianActorCritic
 from miktcli.ppo import PPOConfig, PPOTrainer
 

@@ -159,7 +159,7 @@ def test_tampered_teacher_is_refused_by_transfer(registry):
 
 
 def test_checkpoints_carry_the_run_card(registry):
-    from miktcli.runs import open_run
+    from miktcli.registry.runs import open_run
 
     mikt("transfer", "--to", "hopper", "--method", "vpg", "--steps", 2048, "--eval-episodes", 1)
     ckpt, tensors = open_run(registry, "run1").load_checkpoint()

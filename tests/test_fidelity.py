@@ -8,7 +8,7 @@ import torch
 from miktcli.envs import make_env
 from miktcli.envs.vector import SyncEnvs
 from miktcli.evaluation import evaluate
-from miktcli.mikt import MiktActorCritic, MiktConfig
+from miktcli.methods.mikt import MiktActorCritic, MiktConfig
 from miktcli.policies import GaussianActorCritic, gaussian_kl
 from miktcli.ppo import PPOConfig, PPOTrainer
 

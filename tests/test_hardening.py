@@ -13,9 +13,9 @@ from safetensors.torch import load as st_load
 from safetensors.torch import save as st_save
 from typer.testing import CliRunner
 
-from miktcli.cards import TeacherCard
-from miktcli.checkpoint import CARD_KEY, tensors_sha256
 from miktcli.cli.app import app
+from miktcli.registry.cards import TeacherCard
+from miktcli.registry.files import CARD_KEY, tensors_sha256
 
 runner = CliRunner()
 
@@ -103,7 +103,7 @@ def test_sigkill_leaves_a_stale_run_that_resumes(registry, tmp_path):
 
 
 def test_a_run_being_trained_cannot_be_resumed_twice(registry):
-    from miktcli.runs import RunLock, open_run
+    from miktcli.registry.runs import RunLock, open_run
 
     r = runner.invoke(app, ["teacher", "train", "hopper", "--steps", "6144"], catch_exceptions=False)
     assert r.exit_code == 0
@@ -137,7 +137,7 @@ def test_an_unwritable_registry_is_found_before_training(registry):
 
 
 def test_a_failure_after_training_marks_the_run_failed(registry, monkeypatch):
-    import miktcli.training as training
+    import miktcli.workflows.session as training
 
     def broken(*args, **kwargs):
         raise OSError(28, "No space left on device", str(registry / "teachers"))
@@ -176,7 +176,7 @@ def test_extra_or_missing_tensors_and_misplaced_cards_are_refused(teacher):
 
 @pytest.mark.parametrize("drop", ["reward_scaler.moments", "optim.exp_avg", "progress.global_step"])
 def test_checkpoints_missing_state_are_refused_on_resume(registry, drop):
-    from miktcli.runs import open_run
+    from miktcli.registry.runs import open_run
 
     mikt("teacher", "train", "hopper", "--steps", 6144, "--name", "t")
     run = open_run(registry, "run1")
@@ -299,7 +299,7 @@ def test_reserved_and_bad_names_are_refused(registry, name):
 @pytest.mark.parametrize("env", ["hopper", "centipede-four"])
 def test_a_resumed_run_ends_exactly_like_an_uninterrupted_one(registry, monkeypatch, env):
     from miktcli.ppo import PPOTrainer
-    from miktcli.runs import open_run
+    from miktcli.registry.runs import open_run
 
     mikt("teacher", "train", env, "--steps", 6144, "--name", "straight")
     original = PPOTrainer.update

@@ -1,11 +1,11 @@
 import pytest
 import torch
 
-from miktcli.baselines import mlpp_from_teacher
 from miktcli.errors import MiktError
-from miktcli.mikt import MiktActorCritic, MiktConfig, initial_student_weight
+from miktcli.methods.mikt import MiktActorCritic, MiktConfig, initial_student_weight
+from miktcli.methods.mlpp import mlpp_from_teacher
 from miktcli.policies import GaussianActorCritic
-from miktcli.transfer import check_teachers
+from miktcli.workflows.transfer import check_teachers
 
 
 def frozen_teacher(obs_dim, act_dim, hidden=(64, 64)):

@@ -5,12 +5,12 @@ import torch
 from safetensors.torch import load as st_load
 from safetensors.torch import save as st_save
 
-from miktcli.cards import TeacherCard, now
-from miktcli.checkpoint import CARD_KEY
 from miktcli.envs import load_spec
 from miktcli.errors import MiktError
 from miktcli.policies import GaussianActorCritic
-from miktcli.teachers import list_names, load_teacher, publish_teacher, resolve, versions
+from miktcli.registry.cards import TeacherCard, now
+from miktcli.registry.files import CARD_KEY
+from miktcli.registry.teachers import list_names, load_teacher, publish_teacher, resolve, versions
 
 
 def make_card(**kw):
@@ -96,7 +96,7 @@ def test_versions_are_immutable_and_writes_atomic(published, monkeypatch):
     registry, _, _ = published
     path = resolve(registry, "tiny@v1")
     before = path.read_bytes()
-    import miktcli.atomic as atomic
+    import miktcli.registry.files as atomic
 
     def crash(*args, **kwargs):
         raise OSError("disk full")
@@ -111,7 +111,7 @@ def test_versions_are_immutable_and_writes_atomic(published, monkeypatch):
 
 def test_listing_reads_headers_only(published, monkeypatch):
     registry, _, _ = published
-    import miktcli.checkpoint as checkpoint
+    import miktcli.registry.files as checkpoint
     from miktcli.cli.teacher import _teacher_rows
 
     monkeypatch.setattr(checkpoint, "load", lambda *a, **k: pytest.fail("list must not load tensors"))
@@ -123,7 +123,7 @@ def test_a_signal_during_an_atomic_write_waits_for_the_write(tmp_path):
     import os
     import signal
 
-    from miktcli.atomic import write_bytes_atomic
+    from miktcli.registry.files import write_bytes_atomic
 
     target = tmp_path / "f.bin"
     original = os.fsync
@@ -132,7 +132,7 @@ def test_a_signal_during_an_atomic_write_waits_for_the_write(tmp_path):
         original(fd)
         os.kill(os.getpid(), signal.SIGINT)  # arrives mid-write, before the rename
 
-    import miktcli.atomic as atomic
+    import miktcli.registry.files as atomic
 
     atomic.os.fsync = fsync_then_ctrl_c
     try:

@@ -35,7 +35,7 @@ def test_bad_grid_file(registry, tmp_path):
 
 def fake_run(registry, env, method, seed, curve, eval_return, mixing=None):
     """A completed run with a given return curve (one point per 2048-step iteration)."""
-    from miktcli.runs import create_run
+    from miktcli.registry.runs import create_run
 
     run = create_run(registry, kind="transfer", env=env, method=method, seed=seed, total_steps=2048 * len(curve),
                      config={}, command="test", teachers=[], code_version="test", packages={})
@@ -49,7 +49,7 @@ def fake_run(registry, env, method, seed, curve, eval_return, mixing=None):
 
 
 def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
-    from miktcli.study import Study, cell_key, load_grid
+    from miktcli.workflows.study import Study, cell_key, load_grid
 
     grid_file = tmp_path / "g.toml"
     grid_file.write_text(
@@ -93,7 +93,7 @@ def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
 
 def test_grids_with_duplicate_methods_or_pairs_are_refused(tmp_path):
     from miktcli.errors import MiktError
-    from miktcli.study import load_grid
+    from miktcli.workflows.study import load_grid
 
     base = 'name = "x"\nsteps = 2048\nseeds = [0]\n'
     pair = '[[pairs]]\nfrom = ["a"]\nto = "hopper"\n'

@@ -38,7 +38,7 @@ def eval_command(
     from miktcli.envs import make_env
     from miktcli.evaluation import evaluate
     from miktcli.render import save_mp4, save_png
-    from miktcli.targets import load_policy
+    from miktcli.workflows.evaluate import load_policy
 
     setup_torch()
     reg = resolve_registry(registry)

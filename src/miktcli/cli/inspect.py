@@ -25,7 +25,7 @@ Examples:
 
 
 def _is_run(target: str) -> bool:
-    from miktcli.runs import RUN_TARGET_RE
+    from miktcli.registry.runs import RUN_TARGET_RE
 
     return bool(RUN_TARGET_RE.match(target))
 
@@ -48,12 +48,12 @@ def inspect(
 ) -> None:
     from miktcli.errors import MiktError
     from miktcli.plots import png_plot, text_plot
-    from miktcli.runs import open_run
+    from miktcli.registry.runs import open_run
 
     reg = resolve_registry(registry)
     if not _is_run(target):
         from miktcli.cli.teacher import render_card
-        from miktcli.teachers import load_teacher
+        from miktcli.registry.teachers import load_teacher
 
         card = load_teacher(reg, target).card.model_dump(mode="json")
         print_json(card) if as_json else render_card(card)

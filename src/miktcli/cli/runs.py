@@ -16,7 +16,7 @@ def runs(
     registry: Path = registry_option(),
 ) -> None:
     """List runs (teacher training and transfers) with status and results."""
-    from miktcli.runs import list_runs
+    from miktcli.registry.runs import list_runs
 
     reg = resolve_registry(registry)
     found, damaged = list_runs(reg)

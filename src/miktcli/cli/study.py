@@ -26,7 +26,7 @@ def study(
     registry: Path = registry_option(),
 ) -> None:
     from miktcli.cli.transfer import train_transfer_run
-    from miktcli.study import Study, load_grid
+    from miktcli.workflows.study import Study, load_grid
 
     setup_torch()
     reg = resolve_registry(registry)

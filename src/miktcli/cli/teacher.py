@@ -45,9 +45,9 @@ def train(
     """Train a teacher with PPO and add it to the registry as a new version."""
     from miktcli.methods import build_agent
     from miktcli.ppo import PPOConfig
-    from miktcli.runs import open_resumable, open_run
-    from miktcli.teachers import check_name
-    from miktcli.training import Job, new_run, publish_teacher_from_job
+    from miktcli.registry.runs import open_resumable, open_run
+    from miktcli.registry.teachers import check_name
+    from miktcli.workflows.session import Job, new_run, publish_teacher_from_job
 
     setup_torch()
     reg = resolve_registry(registry)
@@ -81,7 +81,7 @@ def train(
 
 
 def _teacher_rows(reg: Path) -> list[dict]:
-    from miktcli.teachers import list_names, read_teacher_card, teachers_dir, versions
+    from miktcli.registry.teachers import list_names, read_teacher_card, teachers_dir, versions
 
     rows = []
     for name in list_names(reg):
@@ -138,7 +138,7 @@ def show(
     registry: Path = registry_option(),
 ) -> None:
     """Show a teacher's card after verifying the file (shapes and sha256)."""
-    from miktcli.teachers import load_teacher
+    from miktcli.registry.teachers import load_teacher
 
     teacher = load_teacher(resolve_registry(registry), ref)
     data = teacher.card.model_dump(mode="json")

@@ -32,8 +32,8 @@ Examples:
 def train_transfer_run(run, registry: Path, eval_episodes: int) -> dict:
     """Train a transfer run to its end with progress on stderr, then evaluate and save its student."""
     from miktcli.methods import build_agent
-    from miktcli.training import Job
-    from miktcli.transfer import finish_transfer
+    from miktcli.workflows.session import Job
+    from miktcli.workflows.transfer import finish_transfer
 
     sources = ", ".join(f"{t.name}@v{t.version}" for t in run.card.teachers) or "scratch"
     try:
@@ -76,8 +76,8 @@ def transfer(
 ) -> None:
     from miktcli.cli.teacher import parse_hidden
     from miktcli.methods import METHODS
-    from miktcli.runs import open_resumable
-    from miktcli.transfer import start_transfer
+    from miktcli.registry.runs import open_resumable
+    from miktcli.workflows.transfer import start_transfer
 
     setup_torch()
     reg = resolve_registry(registry)

@@ -22,7 +22,7 @@ def mlpp_from_teacher(teacher: GaussianActorCritic, obs_dim: int, act_dim: int) 
 
 
 def build_mlpp(run, registry: Path, spec) -> GaussianActorCritic:
-    from miktcli.transfer import load_run_teachers
+    from miktcli.workflows.transfer import load_run_teachers
 
     teachers = load_run_teachers(run, registry)
     return mlpp_from_teacher(teachers[0].policy, spec.obs_dim, spec.act_dim)

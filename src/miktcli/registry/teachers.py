@@ -12,10 +12,10 @@ from pathlib import Path
 
 import torch
 
-from miktcli.cards import TEACHER_SCHEMA_VERSION, TeacherCard
-from miktcli.checkpoint import read_card, read_tensors, save_with_card, tensors_sha256, verify_sha
 from miktcli.errors import MiktError
 from miktcli.policies import GaussianActorCritic
+from miktcli.registry.cards import TEACHER_SCHEMA_VERSION, TeacherCard
+from miktcli.registry.files import read_card, read_tensors, save_with_card, tensors_sha256, verify_sha
 
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
 MAX_NAME_LENGTH = 64

@@ -17,10 +17,17 @@ from typing import Any
 import torch
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from miktcli.atomic import append_line, write_text_atomic
-from miktcli.cards import RUN_SCHEMA_VERSION, RunCard, now
-from miktcli.checkpoint import read_card, read_tensors, save_with_card, tensors_sha256, verify_sha
 from miktcli.errors import MiktError, describe_validation_error
+from miktcli.registry.cards import RUN_SCHEMA_VERSION, RunCard, now
+from miktcli.registry.files import (
+    append_line,
+    read_card,
+    read_tensors,
+    save_with_card,
+    tensors_sha256,
+    verify_sha,
+    write_text_atomic,
+)
 
 RUN_RE = re.compile(r"^run(\d+)$")
 RUN_TARGET_RE = re.compile(r"^(run\d+|last)$")  # what eval and inspect accept as a run

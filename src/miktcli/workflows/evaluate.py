@@ -28,9 +28,9 @@ class LoadedPolicy(NamedTuple):
 def load_run_policy(registry: Path, run_id: str, with_teacher: bool) -> LoadedPolicy:
     """A run's policy: the saved teacher-free student, or (with_teacher) the MIKT agent from its checkpoint."""
     from miktcli.ppo import PPOConfig
-    from miktcli.runs import open_run
-    from miktcli.teachers import load_policy_file
-    from miktcli.transfer import student_path
+    from miktcli.registry.runs import open_run
+    from miktcli.registry.teachers import load_policy_file
+    from miktcli.workflows.transfer import student_path
 
     run = open_run(registry, run_id)
     if with_teacher:
@@ -55,8 +55,8 @@ def load_run_policy(registry: Path, run_id: str, with_teacher: bool) -> LoadedPo
 
 
 def load_policy(registry: Path, target: str, with_teacher: bool = False) -> LoadedPolicy:
-    from miktcli.runs import RUN_TARGET_RE
-    from miktcli.teachers import load_teacher
+    from miktcli.registry.runs import RUN_TARGET_RE
+    from miktcli.registry.teachers import load_teacher
 
     if RUN_TARGET_RE.match(target):
         return load_run_policy(registry, target, with_teacher)

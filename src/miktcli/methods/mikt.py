@@ -223,7 +223,7 @@ def initial_student_weight(num_teachers: int = 1) -> float:
 
 
 def build_mikt(run, registry: Path, spec) -> MiktActorCritic:
-    from miktcli.transfer import load_run_teachers
+    from miktcli.workflows.transfer import load_run_teachers
 
     teachers = load_run_teachers(run, registry)
     config = MiktConfig.model_validate(run.card.config.get("mikt", {}))

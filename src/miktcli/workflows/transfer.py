@@ -9,16 +9,16 @@ from typing import Any
 import torch
 from pydantic import ValidationError
 
-from miktcli.cards import TeacherCard, TeacherRef, now
-from miktcli.checkpoint import save_with_card
 from miktcli.envs import load_spec, make_env
 from miktcli.errors import MiktError, describe_validation_error
 from miktcli.evaluation import evaluate
-from miktcli.mikt import MiktConfig
+from miktcli.methods.mikt import MiktConfig
 from miktcli.policies import ActorCritic, GaussianActorCritic
 from miktcli.ppo import PPOConfig
-from miktcli.runs import Run
-from miktcli.teachers import Teacher, load_teacher
+from miktcli.registry.cards import TeacherCard, TeacherRef, now
+from miktcli.registry.files import save_with_card
+from miktcli.registry.runs import Run
+from miktcli.registry.teachers import Teacher, load_teacher
 
 DEFAULT_KL_COEF = {"mikt": 0.05, "mlpp": 0.0, "vpg": 0.0}
 
@@ -83,7 +83,7 @@ def start_transfer(
     encoder_widths: list[int] | None = None, hidden: list[int] | None = None,
 ) -> Run:
     """Check everything, then create the run folder of a transfer (not yet trained)."""
-    from miktcli.training import new_run
+    from miktcli.workflows.session import new_run
 
     ppo = PPOConfig(num_envs=num_envs, kl_coef=DEFAULT_KL_COEF[method] if kl_coef is None else kl_coef)
     try:
@@ -115,7 +115,7 @@ def student_path(run: Run) -> Path:
 def save_student(run: Run, student: GaussianActorCritic, final_return: float | None,
                  best_return: float | None, clip_actions: bool) -> TeacherCard:
     """The teacher-free student as a standalone policy file (same format as a teacher)."""
-    from miktcli.checkpoint import tensors_sha256
+    from miktcli.registry.files import tensors_sha256
 
     spec = load_spec(run.card.env)
     tensors = {k: v.detach().clone().contiguous() for k, v in student.state_dict().items()}
@@ -144,7 +144,7 @@ def eval_policy(policy: ActorCritic, env_name: str, episodes: int, seed: int, cl
 
 def finish_transfer(job, episodes: int) -> dict[str, Any]:
     """Save the teacher-free student, evaluate it (and the student with its teacher), complete the run."""
-    from miktcli.mikt import MiktActorCritic
+    from miktcli.methods.mikt import MiktActorCritic
 
     run, agent = job.run, job.agent
     clip = job.config.clip_actions_for_env

@@ -11,11 +11,11 @@ from typing import Any
 
 import torch
 
-from miktcli.cards import code_version, package_versions
 from miktcli.envs import load_spec, make_env
 from miktcli.errors import MiktError
 from miktcli.ppo import PPOConfig, PPOTrainer
-from miktcli.runs import Run, RunLock, create_run
+from miktcli.registry.cards import code_version, package_versions
+from miktcli.registry.runs import Run, RunLock, create_run
 
 MAX_SEED = 2**32 - 1  # numpy's and torch's seeding range
 
@@ -131,8 +131,8 @@ class Job:
 
 def publish_teacher_from_job(job: Job, name: str) -> Any:
     """Put a finished teacher run's policy into the registry as the next version of `name`."""
-    from miktcli.cards import TeacherCard, now
-    from miktcli.teachers import publish_teacher
+    from miktcli.registry.cards import TeacherCard, now
+    from miktcli.registry.teachers import publish_teacher
 
     card = job.run.card
     teacher = TeacherCard(

@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from miktcli.atomic import write_text_atomic
 from miktcli.errors import MiktError, describe_validation_error
-from miktcli.runs import Run, open_run
+from miktcli.registry.files import write_text_atomic
+from miktcli.registry.runs import Run, open_run
 
 
 class PairSpec(BaseModel):
@@ -165,7 +165,7 @@ class Study:
 
     def check_teachers(self) -> None:
         """Every teacher the grid names must exist before the first cell trains."""
-        from miktcli.teachers import resolve
+        from miktcli.registry.teachers import resolve
 
         for pair in self.grid.pairs:
             if any(m.uses_teachers for m in self.grid.methods):
@@ -183,7 +183,7 @@ class Study:
 
     def execute(self, command: str, train: Callable[[Run], Any]) -> Iterator[tuple[str, Run, str]]:
         """Run every unfinished cell; yields (cell, run, what happened). `train` trains and finishes a run."""
-        from miktcli.transfer import start_transfer
+        from miktcli.workflows.transfer import start_transfer
 
         self.check_teachers()
         for pair, method, seed in self.distinct_cells():
