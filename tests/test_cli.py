@@ -71,7 +71,7 @@ def test_end_to_end_teacher_transfer_inspect_eval(registry, tmp_path):
     assert "p_pi_0" in r.stdout and (tmp_path / "p.png").exists()
     assert "mean return" in mikt("inspect", "run2", "--curve").stdout
     everything = json.loads(mikt("inspect", "run2", "--json").stdout)
-    assert everything["card"]["config"]["encoder_widths"] == [97]
+    assert everything["card"]["teachers"][0]["obs_dim"] == 97  # the encoder's width, from the teacher's card
     assert len(everything["metrics"]) == 2 and "loss_mi" in everything["metrics"][0]
     assert "student on centipede-six" in mikt("eval", "run2", "--episodes", 1).stdout
     assert "student + teacher" in mikt("eval", "run2", "--with-teacher", "--episodes", 1).stdout
@@ -84,7 +84,8 @@ def test_end_to_end_teacher_transfer_inspect_eval(registry, tmp_path):
 
     # explicit options that contradict the card fail before any run exists
     r = mikt("transfer", "--from", "centipede-four", "--to", "ant", "--encoder-width", 111, code=1)
-    assert "its card says state dim 97, --encoder-width asks for 111" in r.output
+    assert "state dim 97 (from its card), encoder width 111 requested" in r.output
+    assert "Hint: --encoder-width must equal each teacher's state dim" in r.output
     assert len(json.loads(mikt("runs", "--json").stdout)) == 2
 
 
@@ -113,8 +114,8 @@ def test_methods_and_ablations_are_recorded_and_change_what_is_trained(
     everything = json.loads(mikt("inspect", result["run"], "--json").stdout)
     config, metrics = everything["card"]["config"], everything["metrics"][0]
     recorded = {"method": everything["card"]["method"], "kl_coef": config["ppo"]["kl_coef"],
-                "mikt": config.get("mikt"), "teachers": len(everything["card"]["teachers"]),
-                **(config.get("mikt") or {})}
+                "mikt": config.get("options"), "teachers": len(everything["card"]["teachers"]),
+                **(config.get("options") or {})}
     assert {k: recorded[k] for k in card} == card
     assert metrics_present <= set(metrics) and not metrics_absent & set(metrics)
     assert config["ppo"]["clip_actions_for_env"] is False
@@ -163,7 +164,7 @@ def test_checkpoints_carry_the_run_card(registry):
 
     mikt("transfer", "--to", "hopper", "--method", "vpg", "--steps", 2048, "--eval-episodes", 1)
     ckpt, tensors = open_run(registry, "run1").load_checkpoint()
-    assert ckpt.run.run_id == "run1" and ckpt.run.config["ppo"]["n_steps"] == 2048
+    assert ckpt.run.run_id == "run1" and ckpt.run.config.ppo.n_steps == 2048
     assert "agent.obs_normalizer.mean" in tensors and "optim.exp_avg" in tensors
 
 

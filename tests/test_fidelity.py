@@ -7,7 +7,7 @@ import torch
 
 from miktcli.envs import make_env
 from miktcli.envs.vector import SyncEnvs
-from miktcli.evaluation import evaluate
+from miktcli.evaluation import run_episodes
 from miktcli.methods.mikt import MiktActorCritic, MiktConfig
 from miktcli.policies import GaussianActorCritic, gaussian_kl
 from miktcli.ppo import PPOConfig, PPOTrainer
@@ -54,10 +54,10 @@ def test_training_sends_raw_gaussian_samples_by_default():
 def test_evaluation_clips_only_when_asked():
     env = RecordingEnv(make_env("centipede-four"))
     act = lambda obs: torch.full((1, 10), 2.5)  # noqa: E731
-    evaluate(act, env, episodes=1, seed=0)
+    run_episodes(act, env, episodes=1, seed=0)
     assert max(a.max() for a in env.seen) == 2.5
     env.seen.clear()
-    evaluate(act, env, episodes=1, seed=0, clip_actions=True)
+    run_episodes(act, env, episodes=1, seed=0, clip_actions=True)
     assert max(a.max() for a in env.seen) == 1.0
 
 
@@ -144,7 +144,7 @@ def test_each_mikt_term_adds_exactly_its_own_gradient(term, option):
     agent.config = agent.config.model_copy(update={option: 0.0})
     without = flat_grad(trainer, mb, old_log_std)
     agent.config = agent.config.model_copy(update={option: coef})
-    _, _, extra = agent.evaluate(mb.obs)
+    _, _, extra = agent.evaluate_actions(mb.obs)
     trainer.flat.zero_grad()
     extra[term].backward()
     assert trainer.flat.flat.grad.abs().max() > 1e-5
@@ -167,7 +167,7 @@ def test_identity_laterals_have_no_matrix_and_projection_learns_one_per_layer():
     weights = [u.weight for us in (*agent.lateral_pi, *agent.lateral_vf) for u in us]
     assert [w.shape for w in weights] == [(64, 64)] * 4
     assert all(u.bias is None for us in agent.lateral_pi for u in us)
-    mean, value, extra = agent.evaluate(torch.randn(16, 139))
+    mean, value, extra = agent.evaluate_actions(torch.randn(16, 139))
     (mean.square().sum() + value.square().sum()).backward()
     assert all(w.grad is not None and w.grad.abs().sum() > 0 for w in weights)
 

@@ -137,12 +137,12 @@ def test_an_unwritable_registry_is_found_before_training(registry):
 
 
 def test_a_failure_after_training_marks_the_run_failed(registry, monkeypatch):
-    import miktcli.workflows.session as training
+    import miktcli.workflows.teacher as teacher_workflow
 
     def broken(*args, **kwargs):
         raise OSError(28, "No space left on device", str(registry / "teachers"))
 
-    monkeypatch.setattr(training, "publish_teacher_from_job", broken)  # the command imports it when it runs
+    monkeypatch.setattr(teacher_workflow, "publish_teacher_from_job", broken)
     r = mikt("teacher", "train", "hopper", "--steps", 2048, code=1)
     assert "No space left on device" in r.output and "internal error" not in r.output
     assert "free some space" in r.output

@@ -41,14 +41,14 @@ def ppo_like_loss(mean, value, agent):
 
 def test_gradient_flow_per_parameter_group_as_algorithm_1(agent):
     obs = torch.randn(32, 139)
-    mean, value, extra = agent.evaluate(obs)
+    mean, value, extra = agent.evaluate_actions(obs)
     assert set(extra) == {"loss_coupling", "loss_mi"}
     assert reached(agent, ppo_like_loss(mean, value, agent)) == {
         "theta": True, "psi": True, "phi": True, "omega": False, "p": True, "teacher": False}
-    _, _, extra = agent.evaluate(obs)
+    _, _, extra = agent.evaluate_actions(obs)
     assert reached(agent, extra["loss_mi"]) == {
         "theta": False, "psi": False, "phi": True, "omega": True, "p": False, "teacher": False}
-    _, _, extra = agent.evaluate(obs)
+    _, _, extra = agent.evaluate_actions(obs)
     assert reached(agent, extra["loss_coupling"]) == {
         "theta": False, "psi": False, "phi": False, "omega": False, "p": True, "teacher": False}
 
@@ -56,15 +56,15 @@ def test_gradient_flow_per_parameter_group_as_algorithm_1(agent):
 def test_without_rl_gradients_the_encoder_learns_from_mi_only():
     torch.manual_seed(0)
     agent = MiktActorCritic(139, 16, [frozen_teacher(97, 10)], MiktConfig(rl_encoder_grad=False))
-    mean, value, extra = agent.evaluate(torch.randn(8, 139))
+    mean, value, extra = agent.evaluate_actions(torch.randn(8, 139))
     assert not reached(agent, ppo_like_loss(mean, value, agent))["phi"]
-    mean, value, extra = agent.evaluate(torch.randn(8, 139))
+    mean, value, extra = agent.evaluate_actions(torch.randn(8, 139))
     assert reached(agent, extra["loss_mi"])["phi"]
 
 
 def test_without_mi_there_is_no_mi_loss():
     agent = MiktActorCritic(139, 16, [frozen_teacher(97, 10)], MiktConfig(mi=False))
-    assert "loss_mi" not in agent.evaluate(torch.randn(4, 139))[2]
+    assert "loss_mi" not in agent.evaluate_actions(torch.randn(4, 139))[2]
 
 
 def test_initial_student_weight(agent):
@@ -88,25 +88,25 @@ def test_two_teachers_of_different_state_dims_get_encoders_of_their_widths():
     agent = MiktActorCritic(181, 22, [frozen_teacher(97, 10), frozen_teacher(11, 3)], MiktConfig())
     assert [e.head.out_features for e in agent.encoders] == [97, 11]
     assert agent.mix_logits_pi.shape == (2, 3)
-    mean, value, _ = agent.evaluate(torch.randn(5, 181))
+    mean, value, _ = agent.evaluate_actions(torch.randn(5, 181))
     assert mean.shape == (5, 22) and value.shape == (5,)
 
 
 def test_a_teacher_with_the_targets_own_spaces_is_fine():
     agent = MiktActorCritic(97, 10, [frozen_teacher(97, 10)], MiktConfig())
-    assert agent.evaluate(torch.randn(3, 97))[0].shape == (3, 10)
+    assert agent.evaluate_actions(torch.randn(3, 97))[0].shape == (3, 10)
 
 
 def test_three_phase_schedule():
     agent = MiktActorCritic(97, 10, [frozen_teacher(97, 10)], MiktConfig())
     agent.set_progress(0.2)
     assert agent.teacher_active and agent.coupling_scale == 0.0
-    assert "loss_coupling" not in agent.evaluate(torch.randn(2, 97))[2]
+    assert "loss_coupling" not in agent.evaluate_actions(torch.randn(2, 97))[2]
     agent.set_progress(0.675)
     assert agent.coupling_scale == pytest.approx(0.5)
     agent.set_progress(0.95)
     assert not agent.teacher_active
-    assert agent.evaluate(torch.randn(2, 97))[2] == {}
+    assert agent.evaluate_actions(torch.randn(2, 97))[2] == {}
     assert agent.diagnostics()["p_pi_0"] == 1.0
 
 
@@ -120,10 +120,10 @@ class FakeTeacher:
 
 def test_width_and_hidden_checks_fail_before_training():
     four, hop = FakeTeacher("centipede-four", 97), FakeTeacher("hopper", 11)
-    assert check_teachers([four, hop], [97, 11], None) == [64, 64]
-    with pytest.raises(MiktError, match="teacher 'hopper@v1': its card says state dim 11, --encoder-width asks for 12"):
+    assert check_teachers([four, hop], [97, 11], None) == ([64, 64], [64, 64])
+    with pytest.raises(MiktError, match=r"teacher 'hopper@v1': state dim 11 \(from its card\), encoder width 12 req"):
         check_teachers([four, hop], [97, 12], None)
-    with pytest.raises(MiktError, match=r"teacher 'centipede-four@v1': its card says hidden sizes \[64, 64\]"):
+    with pytest.raises(MiktError, match=r"teacher 'centipede-four@v1': hidden sizes \[64, 64\] \(policy\)"):
         check_teachers([four], None, [32, 32])
     with pytest.raises(MiktError, match="teacher 'small@v1': hidden sizes"):
         check_teachers([four, FakeTeacher("small", 11, (32, 32))], None, None)

@@ -35,10 +35,13 @@ def test_bad_grid_file(registry, tmp_path):
 
 def fake_run(registry, env, method, seed, curve, eval_return, mixing=None):
     """A completed run with a given return curve (one point per 2048-step iteration)."""
+    from miktcli.ppo import PPOConfig
+    from miktcli.registry.cards import RunConfig
     from miktcli.registry.runs import create_run
 
+    config = RunConfig(ppo=PPOConfig(), pi_hidden=[64, 64], vf_hidden=[64, 64])
     run = create_run(registry, kind="transfer", env=env, method=method, seed=seed, total_steps=2048 * len(curve),
-                     config={}, command="test", teachers=[], code_version="test", packages={})
+                     config=config, command="test", teachers=[], code_version="test", packages={})
     for i, ret in enumerate(curve, start=1):
         run.append_metrics({"iteration": i, "steps": 2048 * i, "return_mean": ret, **(mixing or {})})
     result = {"eval_without_teacher": {"return_mean": eval_return}}

@@ -1,4 +1,4 @@
-"""Runs a policy for a number of episodes, optionally capturing frames for a video."""
+"""Runs a policy for a number of episodes (the low-level loop), optionally capturing frames for a video."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ class EvalResult:
     returns: list[float]
     lengths: list[int]
     frames: list[np.ndarray] = field(default_factory=list)
+    fps: int = 20  # the env's render rate, for a video of the frames
 
     def summary(self) -> dict[str, float]:
         return {
@@ -24,7 +25,7 @@ class EvalResult:
         }
 
 
-def evaluate(
+def run_episodes(
     act: Callable[[torch.Tensor], torch.Tensor], env: gym.Env, episodes: int, seed: int,
     capture_episodes: int = 0, frame_every: int = 1, clip_actions: bool = False,
 ) -> EvalResult:
@@ -32,7 +33,7 @@ def evaluate(
 
     Actions reach the env as the policy gives them unless `clip_actions` (the authors' ppo2 passed raw actions:
     MuJoCo clamps `ctrl` to the actuator range itself, and the control cost is computed on the raw action)."""
-    result = EvalResult([], [])
+    result = EvalResult([], [], fps=int(env.metadata.get("render_fps", 20)))
     low, high = env.action_space.low, env.action_space.high
     for ep in range(episodes):
         obs, _ = env.reset(seed=seed + ep)

@@ -28,8 +28,8 @@ def gaussian_kl(mean: torch.Tensor, log_std: torch.Tensor, old_mean: torch.Tenso
 class ActorCritic(nn.Module):
     """Interface: what the PPO engine needs from a policy/value module.
 
-    Observations reaching `action_mean`, `value` and `evaluate` are already normalised by
-    `obs_normalizer`. `evaluate` also returns the module's own extra loss terms, already weighted;
+    Observations reaching `action_mean`, `value` and `evaluate_actions` are already normalised by
+    `obs_normalizer`. `evaluate_actions` also returns the module's own extra loss terms, already weighted;
     the engine adds them to the PPO loss and logs them.
     """
 
@@ -42,7 +42,7 @@ class ActorCritic(nn.Module):
     def value(self, obs: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
 
-    def evaluate(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
+    def evaluate_actions(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
         return self.action_mean(obs), self.value(obs), {}
 
     def set_progress(self, fraction: float) -> None:

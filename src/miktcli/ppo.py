@@ -1,7 +1,7 @@
 """The one PPO engine: rollout collection, GAE, the clipped loss and the update loop.
 
 It knows nothing about teachers. A policy/value module (policies.ActorCritic) may add its own loss
-terms through `evaluate`; MIKT plugs in that way. Layout and names follow CleanRL's
+terms through `evaluate_actions`; MIKT plugs in that way. Layout and names follow CleanRL's
 ppo_continuous_action.py; every implementation detail that changes results is a field of PPOConfig and
 is recorded with each checkpoint.
 """
@@ -24,6 +24,8 @@ from miktcli.envs.vector import SyncEnvs
 from miktcli.flatparams import FlatParameters
 from miktcli.nets import update_moments
 from miktcli.policies import ActorCritic, gaussian_kl, gaussian_log_prob
+
+_DESCRIPTIVE_ONLY_0_1 = ("autoreset", "init")  # strings mikt 0.1 recorded; they configured nothing
 
 
 class PPOConfig(BaseModel):
@@ -57,9 +59,7 @@ class PPOConfig(BaseModel):
     clip_actions_for_env: bool = Field(
         False, description="clip actions to the action space before env.step; off (the authors' ppo2): the raw "
         "Gaussian sample reaches the env, MuJoCo clamps ctrl itself and the control cost sees the raw action")
-    autoreset: str = Field("same-step", description="envs reset on the ending step; no dummy transitions")
     log_std_init: float = 0.0
-    init: str = "orthogonal: gain sqrt(2) hidden, 0.01 policy head, 1.0 value head"
 
     @property
     def batch_size(self) -> int:
@@ -69,8 +69,9 @@ class PPOConfig(BaseModel):
     def from_record(cls, record: dict[str, Any]) -> PPOConfig:
         """A config read back from a card or run. Records written before `clip_actions_for_env` existed
         (mikt 0.1) clipped actions for the env, so a missing field means True: resuming or evaluating them
-        keeps the reward they were trained on."""
-        return cls.model_validate({"clip_actions_for_env": True, **record})
+        keeps the reward they were trained on. Their `autoreset` and `init` strings configured nothing."""
+        fields = {k: v for k, v in record.items() if k not in _DESCRIPTIVE_ONLY_0_1}
+        return cls.model_validate({"clip_actions_for_env": True, **fields})
 
 
 class Minibatch(NamedTuple):
@@ -234,7 +235,7 @@ class PPOTrainer:
         obs = torch.from_numpy(ro.obs.reshape(T * N, -1))
         with torch.no_grad():
             # One batched pass after the rollout: the network did not change during it.
-            mean, values, _ = agent.evaluate(obs)
+            mean, values, _ = agent.evaluate_actions(obs)
             values = values.numpy().reshape(T, N).astype(np.float64)
             last_values = agent.value(torch.from_numpy(ro.last_obs)).numpy().astype(np.float64)
             next_values = np.concatenate([values[1:], last_values[None]], axis=0)
@@ -263,7 +264,7 @@ class PPOTrainer:
         """The minibatch loss and what to log. Every weighted term is in `terms` once and the loss is their
         sum, so no term can be counted twice (the KL term once was); tests check each term's gradient."""
         cfg, agent = self.config, self.agent
-        mean, value, extra = agent.evaluate(mb.obs)
+        mean, value, extra = agent.evaluate_actions(mb.obs)
         new_logprob = gaussian_log_prob(mb.actions, mean, agent.log_std)
         logratio = new_logprob - mb.log_probs
         ratio = logratio.exp()

@@ -6,20 +6,19 @@ import os
 import shlex
 import sys
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
-REGISTRY_HELP = "Registry folder (default: $MIKT_REGISTRY or ./registry)."
-
-
-def registry_option() -> Path | None:
-    return typer.Option(None, "--registry", help=REGISTRY_HELP, show_default=False)
-
-
-def resolve_registry(path: Path | None) -> Path:
-    if path is not None:
-        return path
-    return Path(os.environ.get("MIKT_REGISTRY", "registry"))
+# Options shared by several commands, declared once.
+RegistryOption = Annotated[Path, typer.Option(
+    "--registry", envvar="MIKT_REGISTRY", show_default=False,
+    help="Registry folder (default: $MIKT_REGISTRY or ./registry).")]
+JsonOption = Annotated[bool, typer.Option("--json", help="Print as JSON (data on stdout).")]
+SeedOption = Annotated[int, typer.Option("--seed", min=0, max=2**32 - 1, help="Random seed.")]
+StepsOption = Annotated[int, typer.Option("--steps", min=1, help="Environment steps (the paper: 2M).")]
+NumEnvsOption = Annotated[int, typer.Option("--num-envs", min=1, help="Synchronous environments (the paper: 1).")]
+DEFAULT_REGISTRY = Path("registry")
 
 
 def command_line() -> str:

@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
+from miktcli.cli.common import JsonOption
 from miktcli.cli.console import err, out, print_data, print_error, print_json
 
 app = typer.Typer(
@@ -24,7 +25,7 @@ def _family(spec) -> str:
 @app.callback(invoke_without_command=True)
 def list_envs(
     ctx: typer.Context,
-    as_json: bool = typer.Option(False, "--json", help="Print the specs as JSON."),
+    as_json: JsonOption = False,
 ) -> None:
     """List the environments (name, family, obs dim, act dim, notes)."""
     from miktcli.envs.spec import scan_specs
@@ -48,7 +49,7 @@ def list_envs(
 @app.command("show")
 def show(
     name: str = typer.Argument(..., help="Environment name, e.g. centipede-six."),
-    as_json: bool = typer.Option(False, "--json", help="Print as JSON."),
+    as_json: JsonOption = False,
 ) -> None:
     """Show one spec and the facts of its built model (bodies, joints, actuators)."""
     from miktcli.envs import load_spec, make_env, model_facts

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from miktcli.cli.common import registry_option, resolve_registry, setup_torch
+from miktcli.cli.common import DEFAULT_REGISTRY, JsonOption, RegistryOption, setup_torch
 from miktcli.cli.console import err, print_data, print_json
 
 HELP = """Evaluate a teacher (NAME or NAME@vN) or a run's student (runN).
@@ -30,34 +30,24 @@ def eval_command(
     render_offscreen: bool = typer.Option(False, "--render-offscreen", help="Write an MP4 and a PNG poster."),
     video: Path = typer.Option(None, "--video", help="MP4 path (default: TARGET-eval.mp4); implies rendering."),
     video_frames: int = typer.Option(300, "--video-frames", min=1, help="Frames to record from episode 1."),
-    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
-    registry: Path = registry_option(),
+    as_json: JsonOption = False,
+    registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
-    import torch
-
-    from miktcli.envs import make_env
-    from miktcli.evaluation import evaluate
     from miktcli.render import save_mp4, save_png
-    from miktcli.workflows.evaluate import load_policy
+    from miktcli.workflows.evaluate import evaluate_policy, load_policy
 
     setup_torch()
-    reg = resolve_registry(registry)
-    policy, env_name, label, clip_actions = load_policy(reg, target, with_teacher)
+    policy, env_name, label, clip_actions = load_policy(registry, target, with_teacher)
     render = render_offscreen or video is not None
-    env = make_env(env_name, render_mode="rgb_array" if render else None)
-    torch.manual_seed(seed)
-    try:
-        res = evaluate(lambda o: policy.act(o, deterministic), env, episodes, seed,
-                       capture_episodes=1 if render else 0, clip_actions=clip_actions)
-    finally:
-        env.close()
+    res = evaluate_policy(policy, env_name, episodes, seed, clip_actions, deterministic,
+                          capture_episodes=1 if render else 0)
     summary = {"target": target, "policy": label, "env": env_name, "deterministic": deterministic,
                "clip_actions_for_env": clip_actions,
                **res.summary()}
     if render:
         video = video or Path(f"{target.replace('@', '-')}-eval.mp4")
         frames = res.frames[:video_frames]
-        save_mp4(frames, video, fps=int(env.metadata.get("render_fps", 20)))
+        save_mp4(frames, video, fps=res.fps)
         poster = save_png(frames[len(frames) // 2], video.with_suffix(".png"))
         summary.update(video=str(video), poster=str(poster))
         err.print(f"wrote {video} ({len(frames)} frames) and {poster}")

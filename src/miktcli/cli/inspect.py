@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
-from miktcli.cli.common import registry_option, resolve_registry
+from miktcli.cli.common import DEFAULT_REGISTRY, JsonOption, RegistryOption
 from miktcli.cli.console import err, out, print_json
 
 HELP = """Inspect a run (runN) or a teacher (NAME or NAME@vN).
@@ -43,14 +43,14 @@ def inspect(
     curve: bool = typer.Option(False, "--curve", help="The learning curve (mean return over training)."),
     plot: Path = typer.Option(None, "--plot", help="Also write the chosen view as a PNG."),
     rows: int = typer.Option(12, "--rows", min=2, help="Table rows to show."),
-    as_json: bool = typer.Option(False, "--json", help="Everything as JSON: card and all metrics."),
-    registry: Path = registry_option(),
+    as_json: JsonOption = False,
+    registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     from miktcli.errors import MiktError
     from miktcli.plots import png_plot, text_plot
     from miktcli.registry.runs import open_run
 
-    reg = resolve_registry(registry)
+    reg = registry
     if not _is_run(target):
         from miktcli.cli.teacher import render_card
         from miktcli.registry.teachers import load_teacher

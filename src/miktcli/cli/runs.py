@@ -2,23 +2,20 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import typer
 from rich.table import Table
 
-from miktcli.cli.common import registry_option, resolve_registry
+from miktcli.cli.common import DEFAULT_REGISTRY, JsonOption, RegistryOption
 from miktcli.cli.console import err, out, print_json
 
 
 def runs(
-    as_json: bool = typer.Option(False, "--json", help="Print the run cards as JSON."),
-    registry: Path = registry_option(),
+    as_json: JsonOption = False,
+    registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     """List runs (teacher training and transfers) with status and results."""
     from miktcli.registry.runs import list_runs
 
-    reg = resolve_registry(registry)
+    reg = registry
     found, damaged = list_runs(reg)
     if as_json:
         # `status` is the live one: `stale` where the card says running but no process holds the run's lock.

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from miktcli.cli.common import command_line, registry_option, resolve_registry, setup_torch
+from miktcli.cli.common import DEFAULT_REGISTRY, RegistryOption, command_line, setup_torch
 from miktcli.cli.console import err, print_data
 
 HELP = """Run a study grid (pairs × methods × seeds), resumably, and write results.md with plots.
@@ -23,13 +23,13 @@ def study(
     grid_file: Path = typer.Argument(..., help="Grid TOML file."),
     out: Path = typer.Option(None, "--out", help="Results folder (default: benchmarks/results/GRID-NAME)."),
     report_only: bool = typer.Option(False, "--report-only", help="Only aggregate what has finished."),
-    registry: Path = registry_option(),
+    registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     from miktcli.cli.transfer import train_transfer_run
     from miktcli.workflows.study import Study, load_grid
 
     setup_torch()
-    reg = resolve_registry(registry)
+    reg = registry
     grid = load_grid(grid_file)
     st = Study(grid, out or Path("benchmarks/results") / grid.name, reg)
     if not report_only:

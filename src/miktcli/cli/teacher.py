@@ -8,9 +8,19 @@ import typer
 from rich.table import Table
 from rich.text import Text
 
-from miktcli.cli.common import command_line, note_rounding, registry_option, resolve_registry, setup_torch
+from miktcli.cli.common import (
+    DEFAULT_REGISTRY,
+    JsonOption,
+    NumEnvsOption,
+    RegistryOption,
+    SeedOption,
+    StepsOption,
+    command_line,
+    note_rounding,
+    setup_torch,
+)
 from miktcli.cli.console import err, out, print_data, print_json
-from miktcli.cli.progress import track_training
+from miktcli.cli.progress import training_progress
 from miktcli.errors import MiktError
 
 app = typer.Typer(
@@ -34,44 +44,34 @@ def parse_hidden(text: str) -> list[int]:
 @app.command("train")
 def train(
     env: str = typer.Argument(None, help="Environment name (see `mikt envs`).", show_default=False),
-    steps: int = typer.Option(2_000_000, "--steps", min=1, help="Environment steps (the paper: 2M)."),
-    seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1, help="Random seed."),
+    steps: StepsOption = 2_000_000,
+    seed: SeedOption = 0,
     name: str = typer.Option(None, "--name", help="Teacher name in the registry (default: the env's name)."),
-    num_envs: int = typer.Option(1, "--num-envs", min=1, help="Synchronous environments (the paper: 1)."),
+    num_envs: NumEnvsOption = 1,
     hidden: str = typer.Option("64,64", "--hidden", help="Hidden sizes of policy and value MLPs."),
     resume: str = typer.Option(None, "--resume", help="Continue an interrupted teacher run, e.g. run3."),
-    registry: Path = registry_option(),
+    registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     """Train a teacher with PPO and add it to the registry as a new version."""
-    from miktcli.methods import build_agent
-    from miktcli.ppo import PPOConfig
     from miktcli.registry.runs import open_resumable, open_run
-    from miktcli.registry.teachers import check_name
-    from miktcli.workflows.session import Job, new_run, publish_teacher_from_job
+    from miktcli.workflows.session import run_to_end
+    from miktcli.workflows.teacher import start_teacher, train_teacher
 
     setup_torch()
-    reg = resolve_registry(registry)
     if resume:
-        run = open_resumable(reg, resume, "teacher")
+        run = open_resumable(registry, resume, "teacher")
     else:
         if env is None:
             raise MiktError("give an environment name, or --resume RUN")
-        teacher_name = check_name(env if name is None else name)
-        sizes = parse_hidden(hidden)
-        config = {"ppo": PPOConfig(num_envs=num_envs).model_dump(), "pi_hidden": sizes, "vf_hidden": sizes,
-                  "teacher_name": teacher_name}
-        run = new_run(reg, kind="teacher", env=env, method="ppo", seed=seed, total_steps=steps, config=config,
-                      command=command_line())
+        run = start_teacher(registry, env=env, steps=steps, seed=seed, name=name, num_envs=num_envs,
+                            hidden=parse_hidden(hidden), command=command_line())
         note_rounding(steps, run.card.total_steps)
+    err.print(f"{run.id}: teacher on {run.card.env}, {run.card.total_steps} steps, seed {run.card.seed} → {run.path}")
     try:
-        with Job(run, reg, build_agent) as job:
-            err.print(f"{run.id}: teacher on {run.card.env}, {run.card.total_steps} steps, seed {run.card.seed} "
-                      f"→ {run.path}")
-            for _ in track_training(job.iterations(), run.card.total_steps, job.trainer.global_step, run.id):
-                pass
-            card = publish_teacher_from_job(job, run.card.config["teacher_name"])
+        with training_progress(run.card.total_steps, run.card.steps_done, run.id) as show:
+            card = run_to_end(train_teacher(run, registry), show)
     except KeyboardInterrupt:
-        steps_done = open_run(reg, run.id).card.steps_done
+        steps_done = open_run(registry, run.id).card.steps_done
         raise MiktError(
             f"interrupted; {run.id} keeps its last complete checkpoint ({steps_done} steps)",
             hint=f"continue with: mikt teacher train --resume {run.id}",
@@ -98,17 +98,16 @@ def _teacher_rows(reg: Path) -> list[dict]:
 
 @app.command("list")
 def list_teachers(
-    as_json: bool = typer.Option(False, "--json", help="Print as JSON."),
-    registry: Path = registry_option(),
+    as_json: JsonOption = False,
+    registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     """List teachers and their versions (reads file headers only)."""
-    reg = resolve_registry(registry)
-    rows = _teacher_rows(reg)
+    rows = _teacher_rows(registry)
     if as_json:
         print_json(rows)
         return
     if not rows:
-        err.print(f"no teachers in {reg}; train one with: mikt teacher train ENV")
+        err.print(f"no teachers in {registry}; train one with: mikt teacher train ENV")
         return
     table = Table("teacher", "env", "obs", "act", "hidden", "steps", "final return", "created")
     for r in rows:
@@ -134,13 +133,13 @@ def render_card(data: dict) -> None:
 @app.command("show")
 def show(
     ref: str = typer.Argument(..., help="NAME, NAME@latest or NAME@vN."),
-    as_json: bool = typer.Option(False, "--json", help="Print as JSON."),
-    registry: Path = registry_option(),
+    as_json: JsonOption = False,
+    registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     """Show a teacher's card after verifying the file (shapes and sha256)."""
     from miktcli.registry.teachers import load_teacher
 
-    teacher = load_teacher(resolve_registry(registry), ref)
+    teacher = load_teacher(registry, ref)
     data = teacher.card.model_dump(mode="json")
     if as_json:
         print_json(data)

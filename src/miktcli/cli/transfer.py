@@ -6,9 +6,19 @@ from pathlib import Path
 
 import typer
 
-from miktcli.cli.common import command_line, note_rounding, registry_option, resolve_registry, setup_torch
+from miktcli.cli.common import (
+    DEFAULT_REGISTRY,
+    JsonOption,
+    NumEnvsOption,
+    RegistryOption,
+    SeedOption,
+    StepsOption,
+    command_line,
+    note_rounding,
+    setup_torch,
+)
 from miktcli.cli.console import err, print_data, print_json
-from miktcli.cli.progress import track_training
+from miktcli.cli.progress import training_progress
 from miktcli.errors import MiktError
 
 HELP = """Transfer from teachers to a new body with MIKT, or run a baseline on the same engine.
@@ -31,30 +41,40 @@ Examples:
 
 def train_transfer_run(run, registry: Path, eval_episodes: int) -> dict:
     """Train a transfer run to its end with progress on stderr, then evaluate and save its student."""
-    from miktcli.methods import build_agent
-    from miktcli.workflows.session import Job
-    from miktcli.workflows.transfer import finish_transfer
+    from miktcli.workflows.session import run_to_end
+    from miktcli.workflows.transfer import train_transfer
 
     sources = ", ".join(f"{t.name}@v{t.version}" for t in run.card.teachers) or "scratch"
+    err.print(f"{run.id}: {run.card.method} {sources} → {run.card.env}, {run.card.total_steps} steps, "
+              f"seed {run.card.seed} → {run.path}")
     try:
-        with Job(run, registry, build_agent) as job:
-            err.print(f"{run.id}: {run.card.method} {sources} → {run.card.env}, {run.card.total_steps} steps, "
-                      f"seed {run.card.seed} → {run.path}")
-            for _ in track_training(job.iterations(), run.card.total_steps, job.trainer.global_step, run.id):
-                pass
-            err.print(f"{run.id}: evaluating the final student ({eval_episodes} episodes)")
-            return finish_transfer(job, eval_episodes)
+        with training_progress(run.card.total_steps, run.card.steps_done, run.id) as show:
+            return run_to_end(train_transfer(run, registry, eval_episodes), show)
     except KeyboardInterrupt:
         raise MiktError(f"interrupted; {run.id} keeps its last complete checkpoint",
                         hint=f"continue with: mikt transfer --resume {run.id}") from None
+
+
+FLAG_HINTS = {  # library errors speak in domain terms; here they meet the flags that caused them
+    "takes no teachers": "drop --from",
+    "needs a teacher": "add --from NAME or NAME@vN",
+    "encoder width": "--encoder-width must equal each teacher's state dim; leave it out to use the cards'",
+    "requested": "--hidden must equal the teachers' hidden sizes; leave it out to use the cards'",
+}
+
+
+def with_flag_hint(error: MiktError) -> MiktError:
+    if error.hint is None:
+        error.hint = next((hint for text, hint in FLAG_HINTS.items() if text in str(error)), None)
+    return error
 
 
 def transfer(
     teacher: list[str] = typer.Option(None, "--from", help="Teacher NAME or NAME@vN; repeat for several teachers."),
     to: str = typer.Option(None, "--to", help="Target environment."),
     method: str = typer.Option("mikt", "--method", help="mikt | vpg (PPO from scratch) | mlpp."),
-    steps: int = typer.Option(2_000_000, "--steps", min=1, help="Environment steps (the paper: 2M)."),
-    seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1),
+    steps: StepsOption = 2_000_000,
+    seed: SeedOption = 0,
     mi: bool = typer.Option(True, "--mi/--no-mi", help="Train the encoder with L_MI ('w/o MI' ablation)."),
     rl_encoder_grad: bool = typer.Option(
         True, "--rl-encoder-grad/--no-rl-encoder-grad", help="PPO gradient into the encoder (ablation: off)."),
@@ -68,26 +88,26 @@ def transfer(
     encoder_width: list[int] = typer.Option(
         None, "--encoder-width", help="Optional check: must equal each teacher's state dim (read from its card)."),
     hidden: str = typer.Option(None, "--hidden", help="Optional check: must equal the teachers' hidden sizes."),
-    num_envs: int = typer.Option(1, "--num-envs", min=1),
+    num_envs: NumEnvsOption = 1,
     eval_episodes: int = typer.Option(10, "--eval-episodes", min=1, help="Episodes for the final evaluation."),
     resume: str = typer.Option(None, "--resume", help="Continue an interrupted transfer run."),
-    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
-    registry: Path = registry_option(),
+    as_json: JsonOption = False,
+    registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     from miktcli.cli.teacher import parse_hidden
-    from miktcli.methods import METHODS
+    from miktcli.methods import get_method, transfer_methods
     from miktcli.registry.runs import open_resumable
     from miktcli.workflows.transfer import start_transfer
 
     setup_torch()
-    reg = resolve_registry(registry)
+    reg = registry
     if resume:
         run = open_resumable(reg, resume, "transfer")
     else:
         if to is None:
             raise MiktError("give the target environment with --to ENV (or --resume RUN)")
-        if method not in METHODS or method == "ppo":
-            raise MiktError(f"unknown method '{method}'; known: mikt, vpg, mlpp")
+        if not get_method(method).for_transfer:
+            raise MiktError(f"unknown method '{method}'; known: {', '.join(transfer_methods())}")
         if coupling_schedule not in ("three-phase", "constant"):
             raise MiktError(f"unknown coupling schedule '{coupling_schedule}'; known: three-phase, constant")
         if lateral not in ("identity", "projection"):
@@ -95,12 +115,15 @@ def transfer(
         mikt = {"coupling_schedule": coupling_schedule, "coupling_pi_coef": coupling_pi_coef,
                 "coupling_vf_coef": coupling_vf_coef, "mi": mi, "mi_coef": mi_coef,
                 "rl_encoder_grad": rl_encoder_grad, "lateral": lateral}
-        run = start_transfer(
-            reg, to=to, method=method, teacher_refs=list(teacher or []), steps=steps, seed=seed,
-            command=command_line(), kl_coef=kl_coef, num_envs=num_envs, mikt_options=mikt,
-            encoder_widths=list(encoder_width) if encoder_width else None,
-            hidden=parse_hidden(hidden) if hidden else None,
-        )
+        try:
+            run = start_transfer(
+                reg, to=to, method=method, teacher_refs=list(teacher or []), steps=steps, seed=seed,
+                command=command_line(), kl_coef=kl_coef, num_envs=num_envs, options=mikt,
+                encoder_widths=list(encoder_width) if encoder_width else None,
+                hidden=parse_hidden(hidden) if hidden else None,
+            )
+        except MiktError as error:
+            raise with_flag_hint(error) from None
         note_rounding(steps, run.card.total_steps)
     result = train_transfer_run(run, reg, eval_episodes)
     if as_json:

@@ -1,28 +1,25 @@
-"""Builds the policy/value module a run trains, from its card: the one place methods are told apart."""
+"""Transfer methods: each is one module plus one line in METHODS.
+
+A method turns an environment's dimensions, the frozen teacher policies and the student's hidden sizes into
+the policy/value module the one PPO engine trains (an `ActorCritic`, which may add its own loss terms).
+Methods depend only on nets, policies and envs; loading teachers and runs is the workflows' job.
+"""
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from miktcli.envs import load_spec
 from miktcli.errors import MiktError
-from miktcli.policies import ActorCritic, GaussianActorCritic
-from miktcli.registry.runs import Run
+from miktcli.methods import mikt, mlpp, vpg
+from miktcli.methods.base import Method
 
-METHODS = ("ppo", "vpg", "mlpp", "mikt")
+METHODS: dict[str, Method] = {m.name: m for m in (vpg.METHOD, vpg.TEACHER_PPO, mlpp.METHOD, mikt.METHOD)}
 
 
-def build_agent(run: Run, registry: Path) -> ActorCritic:
-    spec = load_spec(run.card.env)
-    cfg = run.card.config
-    if run.card.method in ("ppo", "vpg"):
-        return GaussianActorCritic(spec.obs_dim, spec.act_dim, cfg["pi_hidden"], cfg["vf_hidden"])
-    if run.card.method == "mlpp":
-        from miktcli.methods.mlpp import build_mlpp
+def get_method(name: str) -> Method:
+    if name not in METHODS:
+        known = ", ".join(n for n, m in METHODS.items() if m.for_transfer)
+        raise MiktError(f"unknown method '{name}'; known: {known}")
+    return METHODS[name]
 
-        return build_mlpp(run, registry, spec)
-    if run.card.method == "mikt":
-        from miktcli.methods.mikt import build_mikt
 
-        return build_mikt(run, registry, spec)
-    raise MiktError(f"run '{run.id}': unknown method '{run.card.method}'; known: {', '.join(METHODS)}")
+def transfer_methods() -> list[str]:
+    return [n for n, m in METHODS.items() if m.for_transfer]

@@ -13,7 +13,6 @@ Algorithm 1's gradient: θ, ψ ← L_PPO; φ ← L_PPO + L_MI; ω ← L_MI; p �
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Literal
 
 import torch
@@ -21,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from torch import nn
 from torch.nn import functional as F
 
+from miktcli.methods.base import Method
 from miktcli.nets import MLP, ObsNormalizer
 from miktcli.policies import LOG_2PI, ActorCritic, GaussianActorCritic
 
@@ -179,7 +179,7 @@ class MiktActorCritic(ActorCritic):
             return self.vf(obs).squeeze(-1)
         return self._value(obs, self.embeddings(obs), torch.softmax(self.mix_logits_vf, -1))
 
-    def evaluate(self, obs: torch.Tensor):
+    def evaluate_actions(self, obs: torch.Tensor):
         if not self.teacher_active:  # the last phase: a plain MLP student, no extra losses
             return self.pi(obs), self.vf(obs).squeeze(-1), {}
         embs = self.embeddings(obs)
@@ -222,9 +222,25 @@ def initial_student_weight(num_teachers: int = 1) -> float:
     return math.exp(logits[0]) / sum(math.exp(v) for v in logits)
 
 
-def build_mikt(run, registry: Path, spec) -> MiktActorCritic:
-    from miktcli.workflows.transfer import load_run_teachers
+def build(obs_dim: int, act_dim: int, teachers: list[GaussianActorCritic],
+          hidden: tuple[list[int], list[int]], options: BaseModel | None) -> MiktActorCritic:
+    assert isinstance(options, MiktConfig)
+    return MiktActorCritic(obs_dim, act_dim, teachers, options)
 
-    teachers = load_run_teachers(run, registry)
-    config = MiktConfig.model_validate(run.card.config.get("mikt", {}))
-    return MiktActorCritic(spec.obs_dim, spec.act_dim, [t.policy for t in teachers], config)
+
+def with_teachers(agent: ActorCritic) -> MiktActorCritic:
+    """The agent mixing its teachers in with its learned weights, also after the three-phase schedule
+    dropped them."""
+    assert isinstance(agent, MiktActorCritic)
+    agent.teacher_active = True
+    return agent
+
+
+def student(agent: ActorCritic) -> GaussianActorCritic:
+    assert isinstance(agent, MiktActorCritic)
+    return agent.student_only()
+
+
+METHOD = Method(name="mikt", summary="MIKT (Algorithm 1): lateral mixing, coupling, L_MI", min_teachers=1,
+                max_teachers=None, default_kl_coef=0.05, options=MiktConfig, build=build, student=student,
+                with_teachers=with_teachers)

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import torch
+from pydantic import BaseModel
 
+from miktcli.methods.base import Method, keep_agent
 from miktcli.policies import GaussianActorCritic
 
 
@@ -21,8 +21,10 @@ def mlpp_from_teacher(teacher: GaussianActorCritic, obs_dim: int, act_dim: int) 
     return student
 
 
-def build_mlpp(run, registry: Path, spec) -> GaussianActorCritic:
-    from miktcli.workflows.transfer import load_run_teachers
+def build(obs_dim: int, act_dim: int, teachers: list[GaussianActorCritic],
+          hidden: tuple[list[int], list[int]], options: BaseModel | None) -> GaussianActorCritic:
+    return mlpp_from_teacher(teachers[0], obs_dim, act_dim)
 
-    teachers = load_run_teachers(run, registry)
-    return mlpp_from_teacher(teachers[0].policy, spec.obs_dim, spec.act_dim)
+
+METHOD = Method(name="mlpp", summary="the teacher's middle layers as initialisation, all fine-tuned",
+                min_teachers=1, max_teachers=1, default_kl_coef=0.0, options=None, build=build, student=keep_agent)

@@ -8,7 +8,9 @@ import subprocess
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from miktcli.ppo import PPOConfig
 
 TEACHER_SCHEMA_VERSION = 1
 RUN_SCHEMA_VERSION = 1
@@ -90,6 +92,34 @@ class TeacherRef(BaseModel):
     env: str
 
 
+class RunConfig(BaseModel):
+    """What a run trains: the engine's settings, the student's layer sizes and the method's own options."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    ppo: PPOConfig
+    pi_hidden: list[int]
+    vf_hidden: list[int]
+    options: dict[str, Any] | None = Field(None, description="the method's options (MIKT's), validated by it")
+    teacher_name: str | None = Field(None, description="teacher runs: the name the teacher is published as")
+
+    @field_validator("ppo", mode="before")
+    @classmethod
+    def _ppo_record(cls, value: Any) -> Any:
+        return PPOConfig.from_record(value) if isinstance(value, dict) else value
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_0_1(cls, data: Any) -> Any:
+        """run.json of mikt 0.1: MIKT's options under `mikt`, and keys that nothing reads (a teacher's
+        state dim lives in its card and tensors, checked when it is loaded)."""
+        if isinstance(data, dict) and ("mikt" in data or "encoder_widths" in data or "target_obs_dim" in data):
+            data = {k: v for k, v in data.items() if k not in ("encoder_widths", "target_obs_dim", "target_act_dim")}
+            if "mikt" in data:
+                data["options"] = data.pop("mikt")
+        return data
+
+
 RunStatus = Literal["running", "completed", "interrupted", "failed"]
 
 
@@ -108,7 +138,7 @@ class RunCard(BaseModel):
     seed: int
     total_steps: int
     steps_done: int = 0
-    config: dict[str, Any]
+    config: RunConfig
     command: str
     created: dt.datetime
     updated: dt.datetime

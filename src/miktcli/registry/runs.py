@@ -137,6 +137,11 @@ class Run:
     def checkpoint_path(self) -> Path:
         return self.path / "checkpoint.safetensors"
 
+    @property
+    def student_path(self) -> Path:
+        """A finished transfer's teacher-free student (a policy file in the teacher format)."""
+        return self.path / "student.safetensors"
+
     def save_card(self, **updates: Any) -> None:
         self.card = self.card.model_copy(update={**updates, "updated": now()})
         write_text_atomic(self.path / "run.json", self.card.model_dump_json(indent=2))

@@ -16,6 +16,7 @@ from miktcli.errors import MiktError
 from miktcli.policies import GaussianActorCritic
 from miktcli.registry.cards import TEACHER_SCHEMA_VERSION, TeacherCard
 from miktcli.registry.files import read_card, read_tensors, save_with_card, tensors_sha256, verify_sha
+from miktcli.registry.runs import Run
 
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
 MAX_NAME_LENGTH = 64
@@ -156,3 +157,15 @@ def publish_teacher(registry: Path, card: TeacherCard, policy: GaussianActorCrit
         except FileExistsError:
             continue
     raise MiktError(f"could not allocate a version for teacher '{card.name}'")
+
+
+def load_run_teachers(run: Run, registry: Path) -> list[Teacher]:
+    """The exact teacher versions a run was started with; a changed file is refused."""
+    teachers = []
+    for ref in run.card.teachers:
+        t = load_teacher(registry, f"{ref.name}@v{ref.version}")
+        if t.card.tensors_sha256 != ref.sha256:
+            raise MiktError(f"run '{run.id}': teacher '{t.card.ref}' is not the one the run started with "
+                            f"(sha256 {t.card.tensors_sha256[:12]}… vs {ref.sha256[:12]}…)")
+        teachers.append(t)
+    return teachers

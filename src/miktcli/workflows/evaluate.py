@@ -1,21 +1,21 @@
-"""Resolves what `eval` and `inspect` are pointed at: a teacher reference or a run's student."""
+"""Evaluation as library calls: resolve what `eval` and `inspect` point at (a teacher or a run's student),
+and run it for a number of episodes the way it was trained (raw or clipped actions)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import NamedTuple
 
+import torch
+
+from miktcli.envs import make_env
 from miktcli.errors import MiktError
+from miktcli.evaluation import EvalResult, run_episodes
+from miktcli.methods import get_method
 from miktcli.policies import ActorCritic
-
-
-def _agent_from_checkpoint(run, registry: Path) -> ActorCritic:
-    from miktcli.methods import build_agent
-
-    agent = build_agent(run, registry)
-    _, tensors = run.load_checkpoint()
-    agent.load_state_dict({k[len("agent."):]: v for k, v in tensors.items() if k.startswith("agent.")})
-    return agent
+from miktcli.registry.runs import RUN_TARGET_RE, open_run
+from miktcli.registry.teachers import load_policy_file, load_teacher
+from miktcli.workflows.session import agent_from_checkpoint
 
 
 class LoadedPolicy(NamedTuple):
@@ -26,41 +26,50 @@ class LoadedPolicy(NamedTuple):
 
 
 def load_run_policy(registry: Path, run_id: str, with_teacher: bool) -> LoadedPolicy:
-    """A run's policy: the saved teacher-free student, or (with_teacher) the MIKT agent from its checkpoint."""
-    from miktcli.ppo import PPOConfig
-    from miktcli.registry.runs import open_run
-    from miktcli.registry.teachers import load_policy_file
-    from miktcli.workflows.transfer import student_path
-
+    """A run's policy: the saved teacher-free student, or (with_teacher) the agent with its teachers, from
+    its checkpoint."""
     run = open_run(registry, run_id)
+    method = get_method(run.card.method)
     if with_teacher:
-        if run.card.method != "mikt":
+        if method.with_teachers is None:
             raise MiktError(f"run '{run.id}' ({run.card.method}) has no teacher to evaluate with")
-        agent = _agent_from_checkpoint(run, registry)
-        agent.teacher_active = True  # also after the three-phase schedule dropped it: its learned weights
+        agent = method.with_teachers(agent_from_checkpoint(run, registry))
         label = f"{run.id} student + teacher"
-    elif student_path(run).exists():
-        _, agent = load_policy_file(student_path(run))
+    elif run.student_path.exists():
+        _, agent = load_policy_file(run.student_path)
         label = f"{run.id} student"
-    else:
-        # An interrupted or running run: its last checkpoint, teacher-free.
-        agent = _agent_from_checkpoint(run, registry)
-        if hasattr(agent, "student_only"):
-            agent = agent.student_only()
+    else:  # an interrupted or running run: its last checkpoint, teacher-free
+        agent = method.student(agent_from_checkpoint(run, registry))
         label = f"{run.id} student (checkpoint at {run.card.steps_done} steps)"
     agent.obs_normalizer.frozen = True
     agent.eval()
-    clip = PPOConfig.from_record(run.card.config.get("ppo", {})).clip_actions_for_env
-    return LoadedPolicy(agent, run.card.env, label, clip)
+    return LoadedPolicy(agent, run.card.env, label, run.card.config.ppo.clip_actions_for_env)
 
 
 def load_policy(registry: Path, target: str, with_teacher: bool = False) -> LoadedPolicy:
-    from miktcli.registry.runs import RUN_TARGET_RE
-    from miktcli.registry.teachers import load_teacher
-
+    """`target` is a run (runN, last) or a teacher reference (NAME, NAME@vN)."""
     if RUN_TARGET_RE.match(target):
         return load_run_policy(registry, target, with_teacher)
     if with_teacher:
         raise MiktError("--with-teacher applies to runs (runN), not to teachers")
     teacher = load_teacher(registry, target)
     return LoadedPolicy(teacher.policy, teacher.card.env, teacher.card.ref, teacher.card.clip_actions_for_env)
+
+
+def evaluate_policy(policy: ActorCritic, env_name: str, episodes: int, seed: int, clip_actions: bool,
+                    deterministic: bool = True, capture_episodes: int = 0) -> EvalResult:
+    """Run the policy (normaliser frozen) on fresh episodes; frames from the first `capture_episodes`."""
+    env = make_env(env_name, render_mode="rgb_array" if capture_episodes else None)
+    policy.obs_normalizer.frozen = True
+    torch.manual_seed(seed)
+    try:
+        with torch.no_grad():
+            return run_episodes(lambda o: policy.act(o, deterministic), env, episodes, seed,
+                                capture_episodes=capture_episodes, clip_actions=clip_actions)
+    finally:
+        env.close()
+
+
+def evaluation_summary(policy: ActorCritic, env_name: str, episodes: int, seed: int,
+                       clip_actions: bool) -> dict[str, float]:
+    return evaluate_policy(policy, env_name, episodes, seed, clip_actions).summary()

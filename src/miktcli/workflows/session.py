@@ -1,21 +1,25 @@
-"""Drives a run: builds the agent and PPO trainer from the run card, checkpoints every iteration,
-marks interruptions, resumes, and finishes (publishing a teacher or saving a student)."""
+"""A training session: creates runs, builds the agent and PPO trainer from the run card (through its method),
+checkpoints every iteration, holds the run's lock, records how it ended, resumes exactly."""
 
 from __future__ import annotations
 
 import math
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import torch
 
 from miktcli.envs import load_spec, make_env
 from miktcli.errors import MiktError
-from miktcli.ppo import PPOConfig, PPOTrainer
-from miktcli.registry.cards import code_version, package_versions
+from miktcli.methods import get_method
+from miktcli.policies import ActorCritic
+from miktcli.ppo import PPOTrainer
+from miktcli.registry.cards import RunConfig, TeacherRef, code_version, package_versions
 from miktcli.registry.runs import Run, RunLock, create_run
+from miktcli.registry.teachers import load_run_teachers
 
 MAX_SEED = 2**32 - 1  # numpy's and torch's seeding range
 
@@ -40,20 +44,43 @@ def check_registry_writable(registry: Path, *folders: str) -> None:
 
 
 def new_run(registry: Path, *, kind: str, env: str, method: str, seed: int, total_steps: int,
-            config: dict[str, Any], command: str, teachers: list | None = None) -> Run:
+            config: RunConfig, command: str, teachers: list[TeacherRef] | None = None) -> Run:
     """Validate everything a run needs, then create its folder. Nothing is created when a check fails."""
-    ppo = PPOConfig.from_record(config.get("ppo", {}))
     if total_steps < 1:
         raise MiktError(f"--steps {total_steps}: must be at least 1")
-    total_steps = whole_rollouts(total_steps, ppo.batch_size)
+    total_steps = whole_rollouts(total_steps, config.ppo.batch_size)
     if not 0 <= seed <= MAX_SEED:
         raise MiktError(f"--seed {seed} is out of range: 0 to {MAX_SEED}")
+    get_method(method).parse_options(config.options)
     load_spec(env)  # fail on an unknown env before a run folder exists
     check_registry_writable(registry, "runs", *(["teachers"] if kind == "teacher" else []))
     return create_run(
         registry, kind=kind, env=env, method=method, seed=seed, total_steps=total_steps, config=config,
         command=command, teachers=teachers or [], code_version=code_version(), packages=package_versions(),
     )
+
+
+@dataclass(frozen=True)
+class Phase:
+    """A progress event between iterations (e.g. the final evaluation starting)."""
+
+    name: str
+    detail: str = ""
+
+
+Event = dict[str, Any] | Phase  # an iteration's metrics, or a phase
+T = TypeVar("T")
+
+
+def run_to_end(events: Generator[Event, None, T], on_event: Callable[[Event], None] | None = None) -> T:
+    """Drive a workflow generator to its end, handing every progress event to `on_event`; its result."""
+    while True:
+        try:
+            event = next(events)
+        except StopIteration as stop:
+            return stop.value
+        if on_event is not None:
+            on_event(event)
 
 
 class Job:
@@ -63,14 +90,15 @@ class Job:
     (so no second process can train or resume the same run) and, on leaving, records how the run ended:
     `interrupted` on Ctrl-C/SIGTERM, `failed` with the reason on any other exception."""
 
-    def __init__(self, run: Run, registry: Path, build_agent: Callable[[Run, Path], torch.nn.Module]):
+    def __init__(self, run: Run, registry: Path):
         self.run, self.registry = run, registry
         self.lock = RunLock(run).acquire()
         try:
             torch.manual_seed(run.card.seed)
             self.spec = load_spec(run.card.env)
+            self.method = get_method(run.card.method)
             self.agent = build_agent(run, registry)
-            self.config = PPOConfig.from_record(run.card.config.get("ppo", {}))
+            self.config = run.card.config.ppo
             self.trainer = PPOTrainer(self.agent, lambda: make_env(self.spec), self.config, run.card.total_steps,
                                       seed=run.card.seed)
             self.best_return = -math.inf
@@ -129,23 +157,19 @@ class Job:
         return float(sum(returns) / len(returns)) if returns else None
 
 
-def publish_teacher_from_job(job: Job, name: str) -> Any:
-    """Put a finished teacher run's policy into the registry as the next version of `name`."""
-    from miktcli.registry.cards import TeacherCard, now
-    from miktcli.registry.teachers import publish_teacher
+def build_agent(run: Run, registry: Path) -> ActorCritic:
+    """The module a run trains, built by its method from the run card (and the exact teachers it names)."""
+    spec = load_spec(run.card.env)
+    method = get_method(run.card.method)
+    teachers = [t.policy for t in load_run_teachers(run, registry)]
+    cfg = run.card.config
+    return method.build(spec.obs_dim, spec.act_dim, teachers, (cfg.pi_hidden, cfg.vf_hidden),
+                        method.parse_options(cfg.options))
 
-    card = job.run.card
-    teacher = TeacherCard(
-        name=name, version=1, env=card.env, env_spec=job.spec.model_dump(), obs_dim=job.spec.obs_dim,
-        act_dim=job.spec.act_dim, pi_hidden=card.config["pi_hidden"], vf_hidden=card.config["vf_hidden"],
-        clip_actions_for_env=job.config.clip_actions_for_env,
-        steps=job.trainer.global_step, seed=card.seed, final_return=job.final_return,
-        best_return=job.best_return if math.isfinite(job.best_return) else None,
-        hyperparameters=card.config["ppo"], packages=card.packages, code_version=card.code_version,
-        source_run=card.run_id, created=now(), tensors_sha256="",
-    )
-    published = publish_teacher(job.registry, teacher, job.agent)
-    job.run.save_card(status="completed", result={
-        "teacher": published.ref, "final_return": published.final_return, "best_return": published.best_return,
-    })
-    return published
+
+def agent_from_checkpoint(run: Run, registry: Path) -> ActorCritic:
+    """A run's agent with the weights of its last checkpoint (for evaluation, not for training)."""
+    agent = build_agent(run, registry)
+    _, tensors = run.load_checkpoint()
+    agent.load_state_dict({k[len("agent."):]: v for k, v in tensors.items() if k.startswith("agent.")})
+    return agent

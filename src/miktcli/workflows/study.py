@@ -8,18 +8,20 @@ skips finished cells when started again. `report` aggregates whatever has finish
 from __future__ import annotations
 
 import json
-import math
 import tomllib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from miktcli.errors import MiktError, describe_validation_error
+from miktcli.methods import transfer_methods
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.runs import Run, open_run
+from miktcli.registry.teachers import resolve
+from miktcli.workflows.report import write_report
+from miktcli.workflows.transfer import start_transfer
 
 
 class PairSpec(BaseModel):
@@ -35,12 +37,20 @@ class PairSpec(BaseModel):
 
 
 class MethodSpec(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
     name: str
-    method: str = Field(pattern="^(mikt|vpg|mlpp)$")
+    method: str
     kl_coef: float | None = None
-    mikt: dict[str, Any] = Field(default_factory=dict)
+    # the method's options; grids write them under the method's name (`mikt = { mi = false }`)
+    options: dict[str, Any] = Field(default_factory=dict, alias="mikt")
+
+    @field_validator("method")
+    @classmethod
+    def _known(cls, value: str) -> str:
+        if value not in transfer_methods():
+            raise ValueError(f"unknown method '{value}', expected one of {', '.join(transfer_methods())}")
+        return value
 
     @property
     def uses_teachers(self) -> bool:
@@ -97,32 +107,6 @@ def legacy_cell_key(pair: PairSpec, method: MethodSpec, seed: int) -> str:
     return f"{'+'.join(pair.teachers)}>{pair.to}|{method.name}|{seed}"
 
 
-def first_reach(steps: np.ndarray, curve: np.ndarray, level: float) -> str:
-    hit = np.nonzero(curve >= level)[0]
-    return f"{int(steps[hit[0]]):,}" if len(hit) else "not reached"
-
-
-def three_quarters_level(final: float) -> float:
-    """"¾ of the baseline's final return", also for a final return ≤ 0, where 0.75·final would be *above*
-    it: the level a quarter of |final| below final (equal to 0.75·final when final > 0)."""
-    return final - 0.25 * abs(final)
-
-
-def sample_std(values: np.ndarray, axis: int | None = None) -> np.ndarray | float:
-    """Sample standard deviation (ddof 1); NaN for a single value, where it is undefined."""
-    values = np.asarray(values, dtype=float)
-    n = values.shape[axis] if axis is not None else values.size
-    if n < 2:
-        return np.full(np.delete(values.shape, axis), np.nan) if axis is not None else float("nan")
-    return np.nanstd(values, axis=axis, ddof=1)
-
-
-def mean_pm_std(values) -> str:
-    values = np.asarray(values, dtype=float)
-    std = sample_std(values)
-    return f"{np.mean(values):.0f} ± {std:.0f}" if math.isfinite(std) else f"{np.mean(values):.0f}"
-
-
 class Study:
     def __init__(self, grid: Grid, out_dir: Path, registry: Path):
         self.grid, self.out_dir, self.registry = grid, Path(out_dir), Path(registry)
@@ -165,12 +149,14 @@ class Study:
 
     def check_teachers(self) -> None:
         """Every teacher the grid names must exist before the first cell trains."""
-        from miktcli.registry.teachers import resolve
-
         for pair in self.grid.pairs:
             if any(m.uses_teachers for m in self.grid.methods):
                 for ref in pair.teachers:
                     resolve(self.registry, ref)
+
+    @staticmethod
+    def key(pair: PairSpec, method: MethodSpec, seed: int) -> str:
+        return cell_key(pair, method, seed)
 
     def run_of(self, key: str) -> Run | None:
         run_id = self.cells.get(key)
@@ -183,8 +169,6 @@ class Study:
 
     def execute(self, command: str, train: Callable[[Run], Any]) -> Iterator[tuple[str, Run, str]]:
         """Run every unfinished cell; yields (cell, run, what happened). `train` trains and finishes a run."""
-        from miktcli.workflows.transfer import start_transfer
-
         self.check_teachers()
         for pair, method, seed in self.distinct_cells():
             key = cell_key(pair, method, seed)
@@ -196,7 +180,7 @@ class Study:
                 run = start_transfer(
                     self.registry, to=pair.to, method=method.method,
                     teacher_refs=pair.teachers if method.uses_teachers else [], steps=self.grid.steps,
-                    seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, mikt_options=method.mikt,
+                    seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, options=method.options,
                 )
                 self._remember(key, run.id)
                 yield key, run, "start"
@@ -205,116 +189,6 @@ class Study:
             train(run)
             yield key, open_run(self.registry, run.id), "finished"
 
-    # --- the report ---------------------------------------------------------------------------------
-    def _curves(self, pair: PairSpec, method: MethodSpec) -> tuple[list[Run], np.ndarray, np.ndarray]:
-        """Completed runs of a cell group and their return curves on the common iteration grid."""
-        runs, curves = [], []
-        for seed in self.grid.seeds:
-            run = self.run_of(cell_key(pair, method, seed))
-            if run is None or run.card.status != "completed":
-                continue
-            rows = run.read_metrics()
-            runs.append(run)
-            curves.append([(r["steps"], np.nan if r["return_mean"] is None else r["return_mean"]) for r in rows])
-        if not curves:
-            return [], np.zeros(0), np.zeros((0, 0))
-        length = min(len(c) for c in curves)
-        steps = np.array([s for s, _ in curves[0][:length]])
-        return runs, steps, np.array([[v for _, v in c[:length]] for c in curves])
-
     def report(self) -> Path:
-        from miktcli.plots import png_plot
-
-        self.out_dir.mkdir(parents=True, exist_ok=True)
-        g = self.grid
-        lines = [f"# Study `{g.name}`", "",
-                 f"{g.steps:,} steps per run, seeds {g.seeds}, {g.eval_episodes} evaluation episodes per run. "
-                 "Returns are the mean training-episode return over the last 100 episodes at each mark (the last "
-                 "iteration at or before it: the column names that step), then mean ± sample std (ddof 1) over "
-                 "the n completed seeds; *mean over training* averages that curve over the whole run (area under "
-                 "the curve per step); *final eval* is the teacher-free student, deterministic, on fresh seeds. "
-                 f"*¾ of {g.baseline} final* is the level a quarter of |final| below the baseline's final return "
-                 "(0.75 × final when it is positive).",
-                 ""]
-        summary: dict[str, Any] = {}
-        for pair in g.pairs:
-            data = {m.name: self._curves(pair, m) for m in g.methods}
-            base_runs, base_steps, base_curves = data[g.baseline]
-            base_final = float(np.nanmean(base_curves[:, -1])) if len(base_runs) else None
-            marks = [m for m in g.marks if m <= g.steps] or [g.steps]
-            any_steps = next((steps for runs, steps, _ in data.values() if runs), None)
-            mark_index = {}
-            for mark in marks:
-                i = int(np.searchsorted(any_steps, mark, side="right")) - 1 if any_steps is not None else -1
-                mark_index[mark] = i
-            mark_labels = [f"{int(any_steps[i]):,}" if i >= 0 else f"{m:,}" for m, i in mark_index.items()]
-            header = ["method", "n", *mark_labels, "mean over training",
-                      "final eval (no teacher)", f"steps to {g.baseline} final", f"steps to ¾ of {g.baseline} final",
-                      "final student weights p (π / V)"]
-            lines += [f"## {pair.name}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-            series, bands, weight_series = {}, {}, {}
-            summary[pair.name] = {}
-            for method in g.methods:
-                runs, steps, curves = data[method.name]
-                if not runs:
-                    lines.append(f"| {method.name} | 0 | " + " | ".join("—" for _ in header[2:]) + " |")
-                    continue
-                mean = np.nanmean(curves, 0)
-                std = sample_std(curves, axis=0)
-                cells = ["—" if i < 0 or i >= len(mean) or math.isnan(mean[i]) else mean_pm_std(curves[:, i])
-                         for i in mark_index.values()]
-                evals = [r.card.result["eval_without_teacher"]["return_mean"] for r in runs]
-                reach = reach_75 = "—"
-                if base_final is not None:
-                    reach, reach_75 = (first_reach(steps, mean, level)
-                                       for level in (base_final, three_quarters_level(base_final)))
-                weights = "—"
-                mixing = [r.card.result.get("final_mixing_learned") for r in runs]
-                if all(mixing):
-                    keys = sorted(mixing[0])
-                    avg = {k: float(np.mean([m[k] for m in mixing])) for k in keys}
-                    pi = "/".join(f"{avg[k]:.2f}" for k in keys if k.startswith("p_pi"))
-                    vf = "/".join(f"{avg[k]:.2f}" for k in keys if k.startswith("p_vf"))
-                    weights = f"{pi} · {vf}"
-                    rows = [r.read_metrics() for r in runs]
-                    n = min(len(r) for r in rows)
-                    for k in keys:
-                        weight_series[f"{method.name} {k}"] = [
-                            (rows[0][i]["steps"], float(np.mean([r[i][k] for r in rows]))) for i in range(n)]
-                # Area under the curve per step: how much return the whole run collected, jump-start included.
-                auc = np.nanmean(curves, axis=1)
-                lines.append(f"| {method.name} | {len(runs)} | " + " | ".join(cells)
-                             + f" | {mean_pm_std(auc)} | {mean_pm_std(evals)} | {reach} | {reach_75} | {weights} |")
-                series[method.name] = list(zip(steps.tolist(), mean.tolist(), strict=True))
-                band = np.nan_to_num(std)  # one seed: no band
-                bands[method.name] = list(zip(steps.tolist(), (mean - band).tolist(), (mean + band).tolist(),
-                                              strict=True))
-                summary[pair.name][method.name] = {
-                    "runs": [r.id for r in runs], "n": len(runs),
-                    "final_eval_mean": float(np.mean(evals)), "final_eval_std": _json_number(sample_std(evals)),
-                    "final_train_mean": float(mean[-1]), "final_train_std": _json_number(std[-1]),
-                    "marks": {str(int(steps[i])): {"mean": float(mean[i]), "std": _json_number(std[i])}
-                              for i in mark_index.values() if 0 <= i < len(mean)},
-                    "mean_over_training": float(np.mean(auc)), "mean_over_training_std": _json_number(sample_std(auc)),
-                    "steps_to_baseline_final": reach, "steps_to_three_quarters_of_baseline_final": reach_75,
-                }
-            slug = "".join(c if c.isalnum() else "-" for c in pair.name.replace(" → ", "-to-")).strip("-")
-            if series:
-                png_plot(series, self.out_dir / f"curves-{slug}.png", pair.name, "mean episode return", bands)
-                lines += ["", f"![learning curves]({f'curves-{slug}.png'})"]
-            if weight_series:
-                png_plot(weight_series, self.out_dir / f"weights-{slug}.png", f"{pair.name}: student weights",
-                         "p (student)")
-                lines += ["", f"![student weights]({f'weights-{slug}.png'})"]
-            lines.append("")
-        lines += ["## Runs", "", "Cells without teachers (`-`) are one run shared by every pair with that target.", "",
-                  "| cell (teachers > target) | method | seed | run |", "|---|---|---|---|"]
-        lines += [f"| {' | '.join(k.split('|'))} | {v} |" for k, v in self.cells.items()]
-        path = self.out_dir / "results.md"
-        write_text_atomic(path, "\n".join(lines) + "\n")
-        write_text_atomic(self.out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False))
-        return path
-
-
-def _json_number(value: float) -> float | None:
-    return float(value) if math.isfinite(float(value)) else None
+        """Aggregate whatever has finished into results.md, summary.json and plots (see workflows.report)."""
+        return write_report(self)

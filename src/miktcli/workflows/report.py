@@ -1,0 +1,160 @@
+"""The study report: per-pair tables (marks, mean over training, final eval, steps to the baseline),
+summary.json with the same numbers, and learning-curve and student-weight plots."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from miktcli.registry.files import write_text_atomic
+from miktcli.registry.runs import Run
+
+if TYPE_CHECKING:
+    from miktcli.workflows.study import MethodSpec, PairSpec, Study
+
+
+def first_reach(steps: np.ndarray, curve: np.ndarray, level: float) -> str:
+    hit = np.nonzero(curve >= level)[0]
+    return f"{int(steps[hit[0]]):,}" if len(hit) else "not reached"
+
+
+def three_quarters_level(final: float) -> float:
+    """"¾ of the baseline's final return", also for a final return ≤ 0, where 0.75·final would be *above*
+    it: the level a quarter of |final| below final (equal to 0.75·final when final > 0)."""
+    return final - 0.25 * abs(final)
+
+
+def sample_std(values: np.ndarray, axis: int | None = None) -> np.ndarray | float:
+    """Sample standard deviation (ddof 1); NaN for a single value, where it is undefined."""
+    values = np.asarray(values, dtype=float)
+    n = values.shape[axis] if axis is not None else values.size
+    if n < 2:
+        return np.full(np.delete(values.shape, axis), np.nan) if axis is not None else float("nan")
+    return np.nanstd(values, axis=axis, ddof=1)
+
+
+def mean_pm_std(values) -> str:
+    values = np.asarray(values, dtype=float)
+    std = sample_std(values)
+    return f"{np.mean(values):.0f} ± {std:.0f}" if math.isfinite(std) else f"{np.mean(values):.0f}"
+
+
+def completed_curves(study: Study, pair: PairSpec, method: MethodSpec) -> tuple[list[Run], np.ndarray, np.ndarray]:
+    """Completed runs of a cell group and their return curves on the common iteration grid."""
+    runs, curves = [], []
+    for seed in study.grid.seeds:
+        run = study.run_of(study.key(pair, method, seed))
+        if run is None or run.card.status != "completed":
+            continue
+        rows = run.read_metrics()
+        runs.append(run)
+        curves.append([(r["steps"], np.nan if r["return_mean"] is None else r["return_mean"]) for r in rows])
+    if not curves:
+        return [], np.zeros(0), np.zeros((0, 0))
+    length = min(len(c) for c in curves)
+    steps = np.array([s for s, _ in curves[0][:length]])
+    return runs, steps, np.array([[v for _, v in c[:length]] for c in curves])
+
+
+
+def write_report(study: Study) -> Path:
+    """results.md (tables per pair), summary.json and the curve and student-weight plots."""
+    from miktcli.plots import png_plot
+
+    study.out_dir.mkdir(parents=True, exist_ok=True)
+    g = study.grid
+    lines = [f"# Study `{g.name}`", "",
+             f"{g.steps:,} steps per run, seeds {g.seeds}, {g.eval_episodes} evaluation episodes per run. "
+             "Returns are the mean training-episode return over the last 100 episodes at each mark (the last "
+             "iteration at or before it: the column names that step), then mean ± sample std (ddof 1) over "
+             "the n completed seeds; *mean over training* averages that curve over the whole run (area under "
+             "the curve per step); *final eval* is the teacher-free student, deterministic, on fresh seeds. "
+             f"*¾ of {g.baseline} final* is the level a quarter of |final| below the baseline's final return "
+             "(0.75 × final when it is positive).",
+             ""]
+    summary: dict[str, Any] = {}
+    for pair in g.pairs:
+        data = {m.name: completed_curves(study, pair, m) for m in g.methods}
+        base_runs, base_steps, base_curves = data[g.baseline]
+        base_final = float(np.nanmean(base_curves[:, -1])) if len(base_runs) else None
+        marks = [m for m in g.marks if m <= g.steps] or [g.steps]
+        any_steps = next((steps for runs, steps, _ in data.values() if runs), None)
+        mark_index = {}
+        for mark in marks:
+            i = int(np.searchsorted(any_steps, mark, side="right")) - 1 if any_steps is not None else -1
+            mark_index[mark] = i
+        mark_labels = [f"{int(any_steps[i]):,}" if i >= 0 else f"{m:,}" for m, i in mark_index.items()]
+        header = ["method", "n", *mark_labels, "mean over training",
+                  "final eval (no teacher)", f"steps to {g.baseline} final", f"steps to ¾ of {g.baseline} final",
+                  "final student weights p (π / V)"]
+        lines += [f"## {pair.name}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        series, bands, weight_series = {}, {}, {}
+        summary[pair.name] = {}
+        for method in g.methods:
+            runs, steps, curves = data[method.name]
+            if not runs:
+                lines.append(f"| {method.name} | 0 | " + " | ".join("—" for _ in header[2:]) + " |")
+                continue
+            mean = np.nanmean(curves, 0)
+            std = sample_std(curves, axis=0)
+            cells = ["—" if i < 0 or i >= len(mean) or math.isnan(mean[i]) else mean_pm_std(curves[:, i])
+                     for i in mark_index.values()]
+            evals = [r.card.result["eval_without_teacher"]["return_mean"] for r in runs]
+            reach = reach_75 = "—"
+            if base_final is not None:
+                reach, reach_75 = (first_reach(steps, mean, level)
+                                   for level in (base_final, three_quarters_level(base_final)))
+            weights = "—"
+            mixing = [r.card.result.get("final_mixing_learned") for r in runs]
+            if all(mixing):
+                keys = sorted(mixing[0])
+                avg = {k: float(np.mean([m[k] for m in mixing])) for k in keys}
+                pi = "/".join(f"{avg[k]:.2f}" for k in keys if k.startswith("p_pi"))
+                vf = "/".join(f"{avg[k]:.2f}" for k in keys if k.startswith("p_vf"))
+                weights = f"{pi} · {vf}"
+                rows = [r.read_metrics() for r in runs]
+                n = min(len(r) for r in rows)
+                for k in keys:
+                    weight_series[f"{method.name} {k}"] = [
+                        (rows[0][i]["steps"], float(np.mean([r[i][k] for r in rows]))) for i in range(n)]
+            # Area under the curve per step: how much return the whole run collected, jump-start included.
+            auc = np.nanmean(curves, axis=1)
+            lines.append(f"| {method.name} | {len(runs)} | " + " | ".join(cells)
+                         + f" | {mean_pm_std(auc)} | {mean_pm_std(evals)} | {reach} | {reach_75} | {weights} |")
+            series[method.name] = list(zip(steps.tolist(), mean.tolist(), strict=True))
+            band = np.nan_to_num(std)  # one seed: no band
+            bands[method.name] = list(zip(steps.tolist(), (mean - band).tolist(), (mean + band).tolist(),
+                                          strict=True))
+            summary[pair.name][method.name] = {
+                "runs": [r.id for r in runs], "n": len(runs),
+                "final_eval_mean": float(np.mean(evals)), "final_eval_std": _json_number(sample_std(evals)),
+                "final_train_mean": float(mean[-1]), "final_train_std": _json_number(std[-1]),
+                "marks": {str(int(steps[i])): {"mean": float(mean[i]), "std": _json_number(std[i])}
+                          for i in mark_index.values() if 0 <= i < len(mean)},
+                "mean_over_training": float(np.mean(auc)), "mean_over_training_std": _json_number(sample_std(auc)),
+                "steps_to_baseline_final": reach, "steps_to_three_quarters_of_baseline_final": reach_75,
+            }
+        slug = "".join(c if c.isalnum() else "-" for c in pair.name.replace(" → ", "-to-")).strip("-")
+        if series:
+            png_plot(series, study.out_dir / f"curves-{slug}.png", pair.name, "mean episode return", bands)
+            lines += ["", f"![learning curves]({f'curves-{slug}.png'})"]
+        if weight_series:
+            png_plot(weight_series, study.out_dir / f"weights-{slug}.png", f"{pair.name}: student weights",
+                     "p (student)")
+            lines += ["", f"![student weights]({f'weights-{slug}.png'})"]
+        lines.append("")
+    lines += ["## Runs", "", "Cells without teachers (`-`) are one run shared by every pair with that target.", "",
+              "| cell (teachers > target) | method | seed | run |", "|---|---|---|---|"]
+    lines += [f"| {' | '.join(k.split('|'))} | {v} |" for k, v in study.cells.items()]
+    path = study.out_dir / "results.md"
+    write_text_atomic(path, "\n".join(lines) + "\n")
+    write_text_atomic(study.out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False))
+    return path
+
+
+def _json_number(value: float) -> float | None:
+    return float(value) if math.isfinite(float(value)) else None

@@ -1,0 +1,51 @@
+"""Teacher training as library calls: plan a teacher run, train it to the end, publish the policy."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Generator
+from pathlib import Path
+
+from miktcli.ppo import PPOConfig
+from miktcli.registry.cards import RunConfig, TeacherCard, now
+from miktcli.registry.runs import Run
+from miktcli.registry.teachers import check_name, publish_teacher
+from miktcli.workflows.session import Event, Job, Phase, new_run
+
+
+def start_teacher(registry: Path, *, env: str, steps: int, seed: int, command: str, name: str | None = None,
+                  num_envs: int = 1, hidden: list[int] | None = None) -> Run:
+    """Check everything, then create the run folder of a teacher (PPO from scratch on `env`)."""
+    sizes = hidden or [64, 64]
+    config = RunConfig(ppo=PPOConfig(num_envs=num_envs), pi_hidden=sizes, vf_hidden=sizes,
+                       teacher_name=check_name(env if name is None else name))
+    return new_run(registry, kind="teacher", env=env, method="ppo", seed=seed, total_steps=steps, config=config,
+                   command=command)
+
+
+def train_teacher(run: Run, registry: Path) -> Generator[Event, None, TeacherCard]:
+    """Train a teacher run to its end (resuming from its checkpoint) and publish it as the next version of
+    its name. Yields each iteration's metrics; returns the published card."""
+    with Job(run, registry) as job:
+        yield from job.iterations()
+        yield Phase("publish", run.card.config.teacher_name or run.card.env)
+        return publish_teacher_from_job(job)
+
+
+def publish_teacher_from_job(job: Job) -> TeacherCard:
+    """Put a finished teacher run's policy into the registry as the next version of its name."""
+    card, spec = job.run.card, job.spec
+    teacher = TeacherCard(
+        name=card.config.teacher_name or card.env, version=1, env=card.env, env_spec=spec.model_dump(),
+        obs_dim=spec.obs_dim, act_dim=spec.act_dim, pi_hidden=card.config.pi_hidden,
+        vf_hidden=card.config.vf_hidden, clip_actions_for_env=job.config.clip_actions_for_env,
+        steps=job.trainer.global_step, seed=card.seed, final_return=job.final_return,
+        best_return=job.best_return if math.isfinite(job.best_return) else None,
+        hyperparameters=job.config.model_dump(), packages=card.packages, code_version=card.code_version,
+        source_run=card.run_id, created=now(), tensors_sha256="",
+    )
+    published = publish_teacher(job.registry, teacher, job.agent)
+    job.run.save_card(status="completed", result={
+        "teacher": published.ref, "final_return": published.final_return, "best_return": published.best_return,
+    })
+    return published
