@@ -52,7 +52,8 @@ def fake_run(registry, env, method, seed, curve, eval_return, mixing=None):
 
 
 def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
-    from miktcli.workflows.study import Study, cell_key, load_grid
+    from miktcli.workflows.grid import cell_key, load_grid
+    from miktcli.workflows.study import Study
 
     grid_file = tmp_path / "g.toml"
     grid_file.write_text(
@@ -96,7 +97,7 @@ def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
 
 def test_grids_with_duplicate_methods_or_pairs_are_refused(tmp_path):
     from miktcli.errors import MiktError
-    from miktcli.workflows.study import load_grid
+    from miktcli.workflows.grid import load_grid
 
     base = 'name = "x"\nsteps = 2048\nseeds = [0]\n'
     pair = '[[pairs]]\nfrom = ["a"]\nto = "hopper"\n'

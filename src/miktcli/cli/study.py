@@ -26,7 +26,8 @@ def study(
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     from miktcli.cli.transfer import train_transfer_run
-    from miktcli.workflows.study import Study, load_grid
+    from miktcli.workflows.grid import load_grid
+    from miktcli.workflows.study import Study
 
     setup_torch()
     reg = registry

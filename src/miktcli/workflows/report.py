@@ -5,16 +5,17 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.runs import Run
+from miktcli.workflows.grid import Grid, MethodSpec, PairSpec, cell_key
 
-if TYPE_CHECKING:
-    from miktcli.workflows.study import MethodSpec, PairSpec, Study
+RunOf = Callable[[str], Run | None]  # a cell key → its run, if one was started
 
 
 def first_reach(steps: np.ndarray, curve: np.ndarray, level: float) -> str:
@@ -43,11 +44,12 @@ def mean_pm_std(values) -> str:
     return f"{np.mean(values):.0f} ± {std:.0f}" if math.isfinite(std) else f"{np.mean(values):.0f}"
 
 
-def completed_curves(study: Study, pair: PairSpec, method: MethodSpec) -> tuple[list[Run], np.ndarray, np.ndarray]:
+def completed_curves(grid: Grid, run_of: RunOf, pair: PairSpec,
+                     method: MethodSpec) -> tuple[list[Run], np.ndarray, np.ndarray]:
     """Completed runs of a cell group and their return curves on the common iteration grid."""
     runs, curves = [], []
-    for seed in study.grid.seeds:
-        run = study.run_of(study.key(pair, method, seed))
+    for seed in grid.seeds:
+        run = run_of(cell_key(pair, method, seed))
         if run is None or run.card.status != "completed":
             continue
         rows = run.read_metrics()
@@ -61,12 +63,12 @@ def completed_curves(study: Study, pair: PairSpec, method: MethodSpec) -> tuple[
 
 
 
-def write_report(study: Study) -> Path:
+def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: RunOf) -> Path:
     """results.md (tables per pair), summary.json and the curve and student-weight plots."""
     from miktcli.plots import png_plot
 
-    study.out_dir.mkdir(parents=True, exist_ok=True)
-    g = study.grid
+    out_dir.mkdir(parents=True, exist_ok=True)
+    g = grid
     lines = [f"# Study `{g.name}`", "",
              f"{g.steps:,} steps per run, seeds {g.seeds}, {g.eval_episodes} evaluation episodes per run. "
              "Returns are the mean training-episode return over the last 100 episodes at each mark (the last "
@@ -78,7 +80,7 @@ def write_report(study: Study) -> Path:
              ""]
     summary: dict[str, Any] = {}
     for pair in g.pairs:
-        data = {m.name: completed_curves(study, pair, m) for m in g.methods}
+        data = {m.name: completed_curves(grid, run_of, pair, m) for m in g.methods}
         base_runs, base_steps, base_curves = data[g.baseline]
         base_final = float(np.nanmean(base_curves[:, -1])) if len(base_runs) else None
         marks = [m for m in g.marks if m <= g.steps] or [g.steps]
@@ -140,19 +142,19 @@ def write_report(study: Study) -> Path:
             }
         slug = "".join(c if c.isalnum() else "-" for c in pair.name.replace(" → ", "-to-")).strip("-")
         if series:
-            png_plot(series, study.out_dir / f"curves-{slug}.png", pair.name, "mean episode return", bands)
+            png_plot(series, out_dir / f"curves-{slug}.png", pair.name, "mean episode return", bands)
             lines += ["", f"![learning curves]({f'curves-{slug}.png'})"]
         if weight_series:
-            png_plot(weight_series, study.out_dir / f"weights-{slug}.png", f"{pair.name}: student weights",
+            png_plot(weight_series, out_dir / f"weights-{slug}.png", f"{pair.name}: student weights",
                      "p (student)")
             lines += ["", f"![student weights]({f'weights-{slug}.png'})"]
         lines.append("")
     lines += ["## Runs", "", "Cells without teachers (`-`) are one run shared by every pair with that target.", "",
               "| cell (teachers > target) | method | seed | run |", "|---|---|---|---|"]
-    lines += [f"| {' | '.join(k.split('|'))} | {v} |" for k, v in study.cells.items()]
-    path = study.out_dir / "results.md"
+    lines += [f"| {' | '.join(k.split('|'))} | {v} |" for k, v in cell_runs.items()]
+    path = out_dir / "results.md"
     write_text_atomic(path, "\n".join(lines) + "\n")
-    write_text_atomic(study.out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False))
+    write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False))
     return path
 
 

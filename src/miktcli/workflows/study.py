@@ -8,103 +8,17 @@ skips finished cells when started again. `report` aggregates whatever has finish
 from __future__ import annotations
 
 import json
-import tomllib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
-
-from miktcli.errors import MiktError, describe_validation_error
-from miktcli.methods import transfer_methods
+from miktcli.errors import MiktError
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.runs import Run, open_run
 from miktcli.registry.teachers import resolve
+from miktcli.workflows.grid import Grid, MethodSpec, PairSpec, cell_key, legacy_cell_key
 from miktcli.workflows.report import write_report
 from miktcli.workflows.transfer import start_transfer
-
-
-class PairSpec(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
-
-    teachers: list[str] = Field(alias="from", min_length=1)
-    to: str
-    label: str | None = None
-
-    @property
-    def name(self) -> str:
-        return self.label or f"{'+'.join(t.split('@')[0] for t in self.teachers)} → {self.to}"
-
-
-class MethodSpec(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
-
-    name: str
-    method: str
-    kl_coef: float | None = None
-    # the method's options; grids write them under the method's name (`mikt = { mi = false }`)
-    options: dict[str, Any] = Field(default_factory=dict, alias="mikt")
-
-    @field_validator("method")
-    @classmethod
-    def _known(cls, value: str) -> str:
-        if value not in transfer_methods():
-            raise ValueError(f"unknown method '{value}', expected one of {', '.join(transfer_methods())}")
-        return value
-
-    @property
-    def uses_teachers(self) -> bool:
-        return self.method != "vpg"
-
-
-class Grid(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-    name: str
-    steps: int = Field(gt=0)
-    seeds: list[int] = Field(min_length=1)
-    marks: list[int] = Field(default_factory=list, description="step marks of the results table")
-    eval_episodes: int = 10
-    baseline: str = Field("vpg", description="the method whose final return the others race to")
-    pairs: list[PairSpec] = Field(min_length=1)
-    methods: list[MethodSpec] = Field(min_length=1)
-
-    @model_validator(mode="after")
-    def _no_duplicates(self) -> Grid:
-        # Two methods of one name would share cells and overwrite each other; so would two equal pairs.
-        for what, keys in (("method name", [m.name for m in self.methods]),
-                           ("pair", [f"{'+'.join(p.teachers)} → {p.to}" for p in self.pairs]),
-                           ("seed", [str(s) for s in self.seeds])):
-            dupes = sorted({k for k in keys if keys.count(k) > 1})
-            if dupes:
-                raise ValueError(f"duplicate {what}: {', '.join(dupes)}")
-        if self.baseline not in {m.name for m in self.methods}:
-            raise ValueError(f"baseline '{self.baseline}' is not one of the methods")
-        return self
-
-
-def load_grid(path: Path) -> Grid:
-    try:
-        data = tomllib.loads(Path(path).read_text())
-        return Grid.model_validate(data)
-    except FileNotFoundError:
-        raise MiktError(f"grid file {path} not found") from None
-    except tomllib.TOMLDecodeError as err:
-        raise MiktError(f"{path}: not valid TOML: {err}") from err
-    except ValidationError as err:
-        raise MiktError(f"{path}: {describe_validation_error(err)}") from err
-
-
-def cell_key(pair: PairSpec, method: MethodSpec, seed: int) -> str:
-    """The run a cell needs. A method without teachers (vpg) is the same run whatever the pair, so every
-    pair with that target shares it: the key leaves the teachers out ("-" in their place)."""
-    source = "+".join(pair.teachers) if method.uses_teachers else "-"
-    return f"{source}>{pair.to}|{method.name}|{seed}"
-
-
-def legacy_cell_key(pair: PairSpec, method: MethodSpec, seed: int) -> str:
-    """Keys of state.json files written by mikt 0.1, where every cell named its pair."""
-    return f"{'+'.join(pair.teachers)}>{pair.to}|{method.name}|{seed}"
 
 
 class Study:
@@ -154,10 +68,6 @@ class Study:
                 for ref in pair.teachers:
                     resolve(self.registry, ref)
 
-    @staticmethod
-    def key(pair: PairSpec, method: MethodSpec, seed: int) -> str:
-        return cell_key(pair, method, seed)
-
     def run_of(self, key: str) -> Run | None:
         run_id = self.cells.get(key)
         if run_id is None:
@@ -191,4 +101,4 @@ class Study:
 
     def report(self) -> Path:
         """Aggregate whatever has finished into results.md, summary.json and plots (see workflows.report)."""
-        return write_report(self)
+        return write_report(self.grid, self.out_dir, self.cells, self.run_of)
