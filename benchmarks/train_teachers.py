@@ -1,21 +1,27 @@
-"""Trains the shipped teachers with the paper's settings, one after another, resumably.
+"""Trains the shipped teachers with the paper's settings, one after another, resumably, through the library.
 
     python benchmarks/train_teachers.py            # all of them, in this order
     python benchmarks/train_teachers.py hopper     # just one
 
-Each teacher is `mikt teacher train ENV --steps N --seed S`; a run that was interrupted is resumed with
-`--resume`, a finished one is skipped. Learning curves are copied to benchmarks/results/teachers/v2/ (the
-teachers of mikt 0.2: raw actions, the paper's 2M budget; v1's curves stay in benchmarks/results/teachers/).
+Each teacher is the library's `start_teacher` + `train_teacher` (what `mikt teacher train ENV --steps N --seed S`
+runs); an interrupted run is resumed from its checkpoint, a finished one is skipped. Learning curves are
+copied to benchmarks/results/teachers/v2/ (the teachers of mikt 0.2: raw actions, the paper's 2M budget;
+v1's curves stay in benchmarks/results/teachers/). Progress goes to stderr.
 """
 
 from __future__ import annotations
 
-import json
 import os
+import shlex
 import shutil
-import subprocess
 import sys
 from pathlib import Path
+
+import torch
+
+from miktcli.registry.runs import Run, list_runs
+from miktcli.workflows.session import Phase, run_to_end
+from miktcli.workflows.teacher import start_teacher, train_teacher
 
 ROOT = Path(__file__).resolve().parents[1]
 REGISTRY = Path(os.environ.get("MIKT_REGISTRY", ROOT / "registry"))
@@ -29,31 +35,41 @@ JOBS = [  # (env, steps, seed), in the order the paper-scale study needs them
 ]
 
 
-def find_run(env: str, steps: int, seed: int) -> dict | None:
-    for card_path in sorted((REGISTRY / "runs").glob("run*/run.json")):
-        card = json.loads(card_path.read_text())
-        if (card["kind"], card["env"], card["total_steps"], card["seed"]) == ("teacher", env, steps, seed):
-            return card
-    return None
+def find_run(env: str, steps: int, seed: int) -> Run | None:
+    runs, _ = list_runs(REGISTRY)
+    matches = [r for r in runs if (r.card.kind, r.card.env, r.card.total_steps, r.card.seed)
+               == ("teacher", env, steps, seed)]
+    return matches[-1] if matches else None
+
+
+def report(label: str):
+    def show(event) -> None:
+        if isinstance(event, Phase):
+            print(f"{label}: {event.name} {event.detail}", file=sys.stderr, flush=True)
+        elif event["iteration"] % 50 == 0:
+            print(f"{label}: {event['steps']:,} steps, return {event['return_mean']:.1f}, "
+                  f"{event['steps_per_sec']:.0f} steps/s", file=sys.stderr, flush=True)
+    return show
 
 
 def main(selected: list[str]) -> None:
+    torch.set_num_threads(1)
     for env, steps, seed in JOBS:
         if selected and env not in selected:
             continue
-        card = find_run(env, steps, seed)
-        if card and card["status"] == "completed":
-            print(f"{env}: done in {card['run_id']} ({card['result'].get('teacher')})", flush=True)
+        run = find_run(env, steps, seed)
+        if run is not None and run.card.status == "completed":
+            print(f"{env}: done in {run.id} ({run.card.result.get('teacher')})", flush=True)
         else:
-            args = ["--resume", card["run_id"]] if card else [env, "--steps", str(steps), "--seed", str(seed)]
-            cmd = ["mikt", "teacher", "train", *args, "--registry", str(REGISTRY)]
-            print("$", " ".join(cmd), flush=True)
-            subprocess.run(cmd, check=True)
-            card = find_run(env, steps, seed)
+            if run is None:
+                command = shlex.join(["python", "benchmarks/train_teachers.py", env])
+                run = start_teacher(REGISTRY, env=env, steps=steps, seed=seed, command=command)
+            print(f"{env}: training {run.id} from {run.card.steps_done:,} steps", flush=True)
+            card = run_to_end(train_teacher(run, REGISTRY), report(run.id))
+            print(f"{env}: published {card.ref} (final return {card.final_return:.1f})", flush=True)
         RESULTS.mkdir(parents=True, exist_ok=True)
-        run_dir = REGISTRY / "runs" / card["run_id"]
-        shutil.copy(run_dir / "metrics.jsonl", RESULTS / f"{env}-metrics.jsonl")
-        shutil.copy(run_dir / "run.json", RESULTS / f"{env}-run.json")
+        shutil.copy(run.metrics_path, RESULTS / f"{env}-metrics.jsonl")
+        shutil.copy(run.path / "run.json", RESULTS / f"{env}-run.json")
 
 
 if __name__ == "__main__":
