@@ -105,3 +105,18 @@ def test_trainer_state_round_trip():
         assert torch.equal(v, state[k]), k
     assert u.flat.check_views()
     assert len(list(u.run())) == 2  # continues to 1024 steps
+
+
+def test_hand_written_gaussian_log_prob_and_kl_match_torch_distributions():
+    from torch.distributions import Independent, Normal, kl_divergence
+
+    from miktcli.policies import gaussian_kl, gaussian_log_prob
+
+    torch.manual_seed(0)
+    mean, old_mean = torch.randn(32, 5), torch.randn(32, 5)
+    log_std, old_log_std = 0.3 * torch.randn(5), 0.3 * torch.randn(5)
+    actions = torch.randn(32, 5) * 2
+    new = Independent(Normal(mean, log_std.exp()), 1)
+    old = Independent(Normal(old_mean, old_log_std.exp()), 1)
+    torch.testing.assert_close(gaussian_log_prob(actions, mean, log_std), new.log_prob(actions))
+    torch.testing.assert_close(gaussian_kl(mean, log_std, old_mean, old_log_std), kl_divergence(new, old))
