@@ -141,3 +141,24 @@ def test_a_signal_during_an_atomic_write_waits_for_the_write(tmp_path):
     finally:
         atomic.os.fsync = original
     assert target.read_bytes() == b"complete"  # the write finished first, then Ctrl-C was delivered
+
+
+def test_run_cards_written_by_0_1_still_open(registry):
+    """run.json of mikt 0.1 (a committed study run): MIKT options under `mikt`, dead keys, no clip field."""
+    import shutil
+    from pathlib import Path
+
+    from miktcli.registry.runs import open_run
+
+    old = Path(__file__).resolve().parents[1] / "benchmarks/results/four-to-eight/runs/run5/run.json"
+    (registry / "runs" / "run5").mkdir(parents=True)
+    shutil.copy(old, registry / "runs" / "run5" / "run.json")
+    run = open_run(registry, "run5")
+    assert run.card.method == "mikt" and run.card.config.options["coupling_schedule"] == "three-phase"
+    assert run.card.config.ppo.clip_actions_for_env is True  # 0.1 clipped actions for the env
+    assert "encoder_widths" not in run.card.config.model_dump()
+    data = json.loads(old.read_text())
+    data["schema_version"] = 7
+    (registry / "runs" / "run5" / "run.json").write_text(json.dumps(data))
+    with pytest.raises(MiktError, match="schema version 7 is newer"):
+        open_run(registry, "run5")

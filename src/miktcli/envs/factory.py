@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import warnings
 from typing import Any
 
 import gymnasium as gym
+import mujoco
 
-from miktcli.envs.centipede import CentipedeEnv
 from miktcli.envs.mujoco_warnings import capture_mujoco_warnings
 from miktcli.envs.spec import CentipedeSpec, GymnasiumSpec, load_spec, scan_specs
 from miktcli.errors import MiktError
@@ -16,33 +15,8 @@ Spec = CentipedeSpec | GymnasiumSpec
 GYM_NAMESPACE = "mikt"
 
 
-def _build(spec: Spec, render_mode: str | None) -> gym.Env:
-    if isinstance(spec, CentipedeSpec):
-        return CentipedeEnv(
-            spec.legs, spec.crippled_legs, max_episode_steps=spec.max_episode_steps, render_mode=render_mode
-        )
-    with warnings.catch_warnings():
-        # Ant-v4 with contact forces is deprecated upstream but is exactly the paper's Ant-v2 layout (111 dims).
-        warnings.filterwarnings("ignore", message=".*is out of date.*")
-        warnings.filterwarnings("ignore", category=DeprecationWarning)
-        try:
-            env = gym.make(
-                spec.id, max_episode_steps=spec.max_episode_steps, render_mode=render_mode,
-                disable_env_checker=True, **spec.kwargs,
-            )
-        except gym.error.Error as err:
-            raise MiktError(f"environment '{spec.name}': gymnasium cannot make '{spec.id}': {err}") from err
-        except Exception as err:  # noqa: BLE001 - kwargs reach the env's own constructor, which may fail anyhow
-            raise MiktError(f"environment '{spec.name}': '{spec.id}' fails with these kwargs: "
-                            f"{type(err).__name__}: {err}") from err
-    _check_continuous_mujoco(spec, env)
-    return env
-
-
 def _check_continuous_mujoco(spec: Spec, env: gym.Env) -> None:
     """PPO here drives MuJoCo bodies with a Gaussian policy: a discrete or non-MuJoCo env cannot be used."""
-    import mujoco
-
     space = env.action_space
     problem = None
     if not isinstance(space, gym.spaces.Box) or len(space.shape) != 1:
@@ -65,7 +39,8 @@ def make_env(spec: Spec | str, render_mode: str | None = None) -> gym.Env:
     if isinstance(spec, str):
         spec = load_spec(spec)
     capture_mujoco_warnings()
-    env = _build(spec, render_mode)
+    env = spec.build(render_mode)
+    _check_continuous_mujoco(spec, env)
     obs_dim, act_dim = env_dims(env)
     if (obs_dim, act_dim) != (spec.obs_dim, spec.act_dim):
         env.close()
@@ -82,8 +57,6 @@ def mujoco_model(env: gym.Env) -> Any:
 
 def model_facts(env: gym.Env) -> dict[str, Any]:
     """Names of the bodies, joints and actuators of a MuJoCo-backed environment."""
-    import mujoco
-
     m = mujoco_model(env)
     return {
         "bodies": [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, i) or f"body{i}" for i in range(m.nbody)],

@@ -5,11 +5,14 @@ from __future__ import annotations
 import os
 import re
 import tomllib
+import warnings
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import gymnasium as gym
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator, model_validator
 
+from miktcli.envs.centipede import CentipedeEnv
 from miktcli.errors import MiktError, describe_validation_error
 
 SPEC_NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
@@ -45,6 +48,10 @@ class CentipedeSpec(_SpecBase):
             raise ValueError("crippled_legs has duplicates")
         return self
 
+    def build(self, render_mode: str | None = None) -> gym.Env:
+        return CentipedeEnv(self.legs, self.crippled_legs, max_episode_steps=self.max_episode_steps,
+                            render_mode=render_mode)
+
 
 class GymnasiumSpec(_SpecBase):
     """An environment that gymnasium already ships, made with `gymnasium.make(id, **kwargs)`."""
@@ -62,6 +69,20 @@ class GymnasiumSpec(_SpecBase):
         if not GYM_ID_RE.match(value):
             raise ValueError(f"'{value}': expected a registered gymnasium id such as Ant-v4")
         return value
+
+    def build(self, render_mode: str | None = None) -> gym.Env:
+        with warnings.catch_warnings():
+            # Ant-v4 with contact forces is deprecated upstream but is exactly the paper's Ant-v2 layout (111 dims).
+            warnings.filterwarnings("ignore", message=".*is out of date.*")
+            warnings.filterwarnings("ignore", category=DeprecationWarning)
+            try:
+                return gym.make(self.id, max_episode_steps=self.max_episode_steps, render_mode=render_mode,
+                                disable_env_checker=True, **self.kwargs)
+            except gym.error.Error as err:
+                raise MiktError(f"environment '{self.name}': gymnasium cannot make '{self.id}': {err}") from err
+            except Exception as err:  # noqa: BLE001 - kwargs reach the env's own constructor, which may fail anyhow
+                raise MiktError(f"environment '{self.name}': '{self.id}' fails with these kwargs: "
+                                f"{type(err).__name__}: {err}") from err
 
 
 EnvSpec = Annotated[CentipedeSpec | GymnasiumSpec, Field(discriminator="family")]

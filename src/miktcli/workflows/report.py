@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from miktcli.plots import png_plot
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.runs import Run
 from miktcli.workflows.grid import Grid, MethodSpec, PairSpec, cell_key
@@ -65,8 +66,6 @@ def completed_curves(grid: Grid, run_of: RunOf, pair: PairSpec,
 
 def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: RunOf) -> Path:
     """results.md (tables per pair), summary.json and the curve and student-weight plots."""
-    from miktcli.plots import png_plot
-
     out_dir.mkdir(parents=True, exist_ok=True)
     g = grid
     lines = [f"# Study `{g.name}`", "",
