@@ -1,4 +1,3 @@
-import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
@@ -128,12 +127,23 @@ def test_time_limit_truncates_and_does_not_terminate(tmp_path):
         assert trunc == (t == 11)
 
 
-def test_gymnasium_make_works():
-    import miktcli.envs as envs
+def test_gymnasium_make_works_in_a_fresh_interpreter_without_importing_miktcli():
+    import subprocess
+    import sys
 
-    envs.register_with_gymnasium()
-    env = gym.make("mikt/centipede-four")
-    assert env.observation_space.shape == (97,)
+    script = (
+        "import gymnasium as gym, numpy as np\n"
+        "env = gym.make('miktcli.gym:mikt/centipede-eight', max_episode_steps=3)\n"
+        "env.reset(seed=0)\n"
+        "ends = [env.step(np.zeros(22))[3] for _ in range(3)]\n"
+        "print(env.observation_space.shape[0], ends)\n"
+        "long = gym.make('mikt/hopper', max_episode_steps=1500)\n"  # registered by the first make
+        "print(long.spec.max_episode_steps, gym.make('mikt/centipede-four').spec.max_episode_steps)\n"
+        "try:\n    gym.make('mikt/hopper', frobnicate=1)\nexcept TypeError as e:\n    print('refused')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split("\n")[:3] == ["181 [False, False, True]", "1500 1000", "refused"]
 
 
 @pytest.mark.parametrize(

@@ -71,16 +71,26 @@ def model_facts(env: gym.Env) -> dict[str, Any]:
     }
 
 
-def _make_registered(name: str, render_mode: str | None = None, **_: Any) -> gym.Env:
-    return make_env(name, render_mode=render_mode)
+# Registered envs leave the time limit to gymnasium's own TimeLimit wrapper (registered with the spec's limit),
+# so `gym.make(..., max_episode_steps=N)` can lengthen an episode as well as shorten it.
+_NO_INNER_LIMIT = 2**62
+
+
+def make_registered(name: str, render_mode: str | None = None) -> gym.Env:
+    """The entry point gymnasium calls for `mikt/NAME`; any other keyword is refused by Python itself."""
+    spec = load_spec(name)
+    return make_env(spec.model_copy(update={"max_episode_steps": _NO_INNER_LIMIT}), render_mode=render_mode)
 
 
 def register_with_gymnasium() -> list[str]:
-    """Register every spec as `mikt/NAME`, so `gymnasium.make("mikt/centipede-six")` works."""
+    """Register every valid spec as `mikt/NAME` (a bad spec file is reported by `mikt envs`; it never blocks
+    the good ones). Importing `miktcli.gym` does this, so `gym.make("miktcli.gym:mikt/centipede-six")` works
+    in a fresh interpreter; after that import, `gym.make("mikt/centipede-six")` works too."""
     ids = []
-    for spec in scan_specs()[0]:  # a bad spec file is reported by `mikt envs`; it never blocks the good ones
+    for spec in scan_specs()[0]:
         env_id = f"{GYM_NAMESPACE}/{spec.name}"
         if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=_make_registered, kwargs={"name": spec.name})
+            gym.register(id=env_id, entry_point="miktcli.envs.factory:make_registered", kwargs={"name": spec.name},
+                         max_episode_steps=spec.max_episode_steps)
         ids.append(env_id)
     return ids
