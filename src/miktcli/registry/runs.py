@@ -26,8 +26,10 @@ from miktcli.registry.files import (
     save_with_card,
     tensors_sha256,
     verify_sha,
+    write_bytes_atomic,
     write_text_atomic,
 )
+from miktcli.registry.tensorboard import EVENTS_FILE, append_event, event_records
 
 RUN_RE = re.compile(r"^run(\d+)$")
 RUN_TARGET_RE = re.compile(r"^(run\d+|last)$")  # what eval and inspect accept as a run
@@ -146,8 +148,14 @@ class Run:
         self.card = self.card.model_copy(update={**updates, "updated": now()})
         write_text_atomic(self.path / "run.json", self.card.model_dump_json(indent=2))
 
+    @property
+    def events_path(self) -> Path:
+        """TensorBoard's view of metrics.jsonl (`tensorboard --logdir registry/runs`)."""
+        return self.path / EVENTS_FILE
+
     def append_metrics(self, metrics: dict[str, Any]) -> None:
         append_line(self.metrics_path, json.dumps({k: _json_safe(v) for k, v in metrics.items()}))
+        append_event(self.events_path, metrics)
 
     def read_metrics(self) -> list[dict[str, Any]]:
         """Every well-formed row, in order. A damaged line (cut by a crash, edited, not UTF-8, not an object
@@ -172,6 +180,7 @@ class Run:
         """Drop rows newer than the checkpoint being resumed, so the curve has no duplicates."""
         rows = [r for r in self.read_metrics() if r.get("iteration", 0) <= iteration]
         write_text_atomic(self.metrics_path, "".join(json.dumps(r) + "\n" for r in rows))
+        write_bytes_atomic(self.events_path, event_records(rows))
 
     def save_checkpoint(self, tensors: dict[str, torch.Tensor], iteration: int, steps: int,
                         progress: dict[str, Any], path: Path | None = None) -> None:

@@ -12,8 +12,9 @@ from typing import Any
 import numpy as np
 
 from miktcli.plots import png_plot
-from miktcli.registry.files import write_text_atomic
+from miktcli.registry.files import write_bytes_atomic, write_text_atomic
 from miktcli.registry.runs import Run
+from miktcli.registry.tensorboard import EVENTS_FILE, event_records
 from miktcli.workflows.grid import Grid, MethodSpec, PairSpec, cell_key
 
 RunOf = Callable[[str], Run | None]  # a cell key → its run, if one was started
@@ -148,7 +149,9 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
                      "p (student)")
             lines += ["", f"![student weights]({f'weights-{slug}.png'})"]
         lines.append("")
-    lines += ["## Runs", "", "Cells without teachers (`-`) are one run shared by every pair with that target.", "",
+    write_tensorboard_tree(grid, out_dir / "tensorboard", run_of)
+    lines += ["## Runs", "", "Cells without teachers (`-`) are one run shared by every pair with that target. "
+              "`tensorboard --logdir tensorboard` (in this folder) shows every run, grouped pair / method / seed.", "",
               "| cell (teachers > target) | method | seed | run |", "|---|---|---|---|"]
     lines += [f"| {' | '.join(k.split('|'))} | {v} |" for k, v in cell_runs.items()]
     path = out_dir / "results.md"
@@ -159,3 +162,21 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
 
 def _json_number(value: float) -> float | None:
     return float(value) if math.isfinite(float(value)) else None
+
+
+def _slug(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "._-" else "-" for c in text.replace(" → ", "-to-")).strip("-")
+
+
+def write_tensorboard_tree(grid: Grid, folder: Path, run_of: RunOf) -> None:
+    """One event file per started cell, under PAIR/METHOD/seedN, made from the run's metrics.jsonl (the
+    source of truth), so TensorBoard groups and compares the study's runs. A shared run appears under every
+    pair it serves."""
+    for pair in grid.pairs:
+        for method in grid.methods:
+            for seed in grid.seeds:
+                run = run_of(cell_key(pair, method, seed))
+                if run is None:
+                    continue
+                target = folder / _slug(pair.name) / _slug(method.name) / f"seed{seed}" / EVENTS_FILE
+                write_bytes_atomic(target, event_records(run.read_metrics(), wall_time=0.0))
