@@ -68,11 +68,18 @@ def orthogonal_linear(n_in: int, n_out: int, gain: float) -> nn.Linear:
     return layer
 
 
-class MLP(nn.Module):
-    """tanh MLP with linear output. `preactivations` gives z^j of every hidden layer (MIKT needs them)."""
+ACTIVATIONS = {"tanh": torch.tanh, "relu": torch.relu}  # what teachers may use; students are tanh (the paper)
 
-    def __init__(self, n_in: int, hidden: list[int] | tuple[int, ...], n_out: int, out_gain: float):
+
+class MLP(nn.Module):
+    """MLP (tanh hidden layers unless told otherwise) with a linear output. `preactivations` gives z^j of every
+    hidden layer (MIKT needs them)."""
+
+    def __init__(self, n_in: int, hidden: list[int] | tuple[int, ...], n_out: int, out_gain: float,
+                 activation: str = "tanh"):
         super().__init__()
+        self.activation = activation
+        self.act = ACTIVATIONS[activation]
         sizes = [n_in, *hidden]
         self.hidden = nn.ModuleList(
             orthogonal_linear(a, b, math.sqrt(2.0)) for a, b in zip(sizes[:-1], sizes[1:], strict=True)
@@ -92,7 +99,7 @@ class MLP(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         for weight, bias in self.layer_params:
-            x = torch.tanh(F.linear(x, weight, bias))
+            x = self.act(F.linear(x, weight, bias))
         return F.linear(x, *self.head_params)
 
     def preactivations(self, x: torch.Tensor) -> list[torch.Tensor]:
@@ -100,5 +107,5 @@ class MLP(nn.Module):
         for weight, bias in self.layer_params:
             z = F.linear(x, weight, bias)
             zs.append(z)
-            x = torch.tanh(z)
+            x = self.act(z)
         return zs

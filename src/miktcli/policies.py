@@ -61,13 +61,14 @@ class ActorCritic(nn.Module):
 
 
 class GaussianActorCritic(ActorCritic):
-    """Separate tanh MLPs for policy and value, state-independent log-std initialised to 0."""
+    """Separate MLPs for policy and value (tanh; an imported teacher may be relu), state-independent log-std
+    initialised to 0."""
 
-    def __init__(self, obs_dim: int, act_dim: int, pi_hidden=(64, 64), vf_hidden=(64, 64)):
+    def __init__(self, obs_dim: int, act_dim: int, pi_hidden=(64, 64), vf_hidden=(64, 64), activation: str = "tanh"):
         super().__init__()
         self.obs_normalizer = ObsNormalizer(obs_dim)
-        self.pi = MLP(obs_dim, list(pi_hidden), act_dim, out_gain=0.01)
-        self.vf = MLP(obs_dim, list(vf_hidden), 1, out_gain=1.0)
+        self.pi = MLP(obs_dim, list(pi_hidden), act_dim, out_gain=0.01, activation=activation)
+        self.vf = MLP(obs_dim, list(vf_hidden), 1, out_gain=1.0, activation=activation)
         self.log_std = nn.Parameter(torch.zeros(act_dim))
 
     def action_mean(self, obs: torch.Tensor) -> torch.Tensor:

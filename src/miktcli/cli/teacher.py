@@ -26,7 +26,7 @@ from miktcli.errors import MiktError
 app = typer.Typer(
     help="Train teachers and browse the registry.\n\nExamples:\n\n  mikt teacher train centipede-four"
     "\n\n  mikt teacher train hopper --steps 1000000 --seed 1\n\n  mikt teacher list\n\n"
-    "  mikt teacher show centipede-four@v1",
+    "  mikt teacher show centipede-four@v1\n\n  mikt teacher import ppo_hopper.zip --env hopper --obs-stats stats.json",
     no_args_is_help=True,
 )
 
@@ -77,6 +77,29 @@ def train(
             hint=f"continue with: mikt teacher train --resume {run.id}",
         ) from None
     err.print(f"final mean return {card.final_return}, best {card.best_return}")
+    print_data(card.ref)
+
+
+@app.command("import")
+def import_command(
+    path: Path = typer.Argument(..., help="An SB3 PPO .zip or a CleanRL .cleanrl_model.", show_default=False),
+    env: str = typer.Option(..., "--env", help="The environment it was trained on (see `mikt envs`)."),
+    fmt: str = typer.Option(None, "--format", help="sb3 | cleanrl (default: from the file name)."),
+    name: str = typer.Option(None, "--name", help="Teacher name in the registry (default: the env's name)."),
+    obs_stats: Path = typer.Option(
+        None, "--obs-stats", help='JSON {"mean": [...], "var": [...]}: the observation normaliser it was trained '
+        "with (SB3's VecNormalize, CleanRL's NormalizeObservation)."),
+    registry: RegistryOption = DEFAULT_REGISTRY,
+) -> None:
+    """Import a PPO policy trained with Stable-Baselines3 or CleanRL as a teacher. Nothing is unpickled."""
+    from miktcli.workflows.teacher import import_teacher
+
+    if fmt is None:
+        fmt = "sb3" if path.suffix == ".zip" else "cleanrl" if path.suffix == ".cleanrl_model" else None
+        if fmt is None:
+            raise MiktError(f"{path}: cannot tell the format from the name", hint="pass --format sb3 or cleanrl")
+    card = import_teacher(registry, path, fmt=fmt, env=env, name=name, obs_stats=obs_stats)
+    err.print(f"imported {path.name} ({fmt}, {card.activation}, hidden {card.pi_hidden}) as {card.ref}")
     print_data(card.ref)
 
 

@@ -62,18 +62,19 @@ class TeacherCard(BaseModel):
     act_dim: int = Field(gt=0)
     pi_hidden: list[int]
     vf_hidden: list[int]
-    activation: Literal["tanh"] = "tanh"
+    activation: Literal["tanh", "relu"] = "tanh"  # hidden layers; mikt trains tanh, imported teachers may be relu
     # How actions reached the env in training, and so how to evaluate the policy. Cards written by mikt 0.1
     # lack the field: those policies were trained with clipped actions.
     clip_actions_for_env: bool = True
     steps: int
-    seed: int
+    seed: int | None  # None: unknown (an imported teacher)
     final_return: float | None
     best_return: float | None
     hyperparameters: dict[str, Any]
     packages: dict[str, str]
     code_version: str
     source_run: str | None = None
+    imported_from: dict[str, Any] | None = None  # a teacher trained elsewhere: format, file and its sha256
     created: dt.datetime
     tensors_sha256: str
 

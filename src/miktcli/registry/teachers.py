@@ -124,7 +124,7 @@ def load_policy_file(path: Path) -> tuple[TeacherCard, GaussianActorCritic]:
     tensors = read_tensors(path)
     check_card_against_tensors(path, card, tensors)
     verify_sha(path, tensors, card.tensors_sha256)
-    policy = GaussianActorCritic(card.obs_dim, card.act_dim, card.pi_hidden, card.vf_hidden)
+    policy = GaussianActorCritic(card.obs_dim, card.act_dim, card.pi_hidden, card.vf_hidden, card.activation)
     policy.load_state_dict(tensors)
     policy.obs_normalizer.frozen = True
     return card, policy

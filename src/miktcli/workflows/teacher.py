@@ -1,4 +1,5 @@
-"""Teacher training as library calls: plan a teacher run, train it to the end, publish the policy."""
+"""Teachers as library calls: plan a teacher run, train it to the end, publish the policy; or import one
+trained elsewhere."""
 
 from __future__ import annotations
 
@@ -6,11 +7,14 @@ import math
 from collections.abc import Generator
 from pathlib import Path
 
+from miktcli.envs import load_spec
+from miktcli.errors import MiktError
 from miktcli.ppo import PPOConfig
-from miktcli.registry.cards import RunConfig, TeacherCard, now
+from miktcli.registry.cards import RunConfig, TeacherCard, code_version, now, package_versions
+from miktcli.registry.importers import read_foreign_policy
 from miktcli.registry.runs import Run
 from miktcli.registry.teachers import check_name, publish_teacher
-from miktcli.workflows.session import Event, Job, Phase, new_run
+from miktcli.workflows.session import Event, Job, Phase, check_registry_writable, new_run
 
 
 def start_teacher(registry: Path, *, env: str, steps: int, seed: int, command: str, name: str | None = None,
@@ -49,3 +53,28 @@ def publish_teacher_from_job(job: Job) -> TeacherCard:
         "teacher": published.ref, "final_return": published.final_return, "best_return": published.best_return,
     })
     return published
+
+
+def import_teacher(registry: Path, path: Path, *, fmt: str, env: str, name: str | None = None,
+                   obs_stats: Path | None = None) -> TeacherCard:
+    """Publish a policy trained elsewhere (Stable-Baselines3 zip, CleanRL model) as the next version of a
+    teacher, after checking its dims and layers against the env spec; nothing is unpickled."""
+    spec = load_spec(env)
+    teacher_name = check_name(env if name is None else name)
+    imported = read_foreign_policy(path, fmt, obs_stats)
+    policy = imported.policy
+    obs_dim, act_dim = policy.obs_normalizer.mean.shape[0], policy.log_std.shape[0]
+    if (obs_dim, act_dim) != (spec.obs_dim, spec.act_dim):
+        raise MiktError(f"{path}: the policy reads obs {obs_dim} and acts {act_dim}; environment '{env}' has "
+                        f"obs {spec.obs_dim} / act {spec.act_dim}")
+    check_registry_writable(registry, "teachers")
+    card = TeacherCard(
+        name=teacher_name, version=1, env=env, env_spec=spec.model_dump(), obs_dim=obs_dim, act_dim=act_dim,
+        pi_hidden=policy.pi.hidden_sizes, vf_hidden=policy.vf.hidden_sizes, activation=imported.activation,
+        clip_actions_for_env=True,  # SB3 and CleanRL's ppo_continuous_action clip actions for the env
+        steps=0, seed=None, final_return=None, best_return=None, hyperparameters={},
+        packages=package_versions(), code_version=code_version(), imported_from=imported.source,
+        created=now(), tensors_sha256="",
+    )
+    policy.obs_normalizer.frozen = True
+    return publish_teacher(registry, card, policy)

@@ -1,0 +1,194 @@
+"""Policies trained elsewhere, read without ever unpickling: Stable-Baselines3 PPO zips and CleanRL models.
+
+Stable-Baselines3 saves a zip of `data` (JSON; objects it could not express in JSON are cloudpickled under
+`:serialized:` keys, next to their string forms), `policy.pth` (the policy's state dict, torch.save) and more.
+We read `data` as plain JSON and never touch a `:serialized:` value, and load `policy.pth` with
+`torch.load(weights_only=True)`, which refuses anything but tensors and plain containers. CleanRL's
+`ppo_continuous_action.py` saves `agent.state_dict()` (`.cleanrl_model`), read the same way.
+
+Supported shapes (anything else is refused with a one-line error):
+- SB3 `MlpPolicy` with separate policy and value networks (`mlp_extractor.policy_net.*`, `.value_net.*`,
+  `action_net`, `value_net`, `log_std`), tanh or relu (read from the JSON string of `policy_kwargs`), and no
+  parameters in its features extractor (the default `FlattenExtractor`). A shared trunk
+  (`mlp_extractor.shared_net`, SB3 < 1.8) is refused: MIKT mixes the policy's and the value's own layers.
+- CleanRL `Agent` of `ppo_continuous_action.py`: `actor_mean` and `critic` `nn.Sequential` MLPs (Linear at even
+  indices, tanh between) and `actor_logstd` of shape (1, act_dim).
+Observation statistics live outside both files (SB3's VecNormalize pickle, CleanRL's NormalizeObservation
+wrapper): pass them as numbers (a JSON file with `mean` and `var` lists, optionally `count`). Without them the
+teacher sees raw observations (mean 0, var 1; mikt's normaliser still clips at ±10).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import re
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from miktcli.errors import MiktError
+from miktcli.policies import GaussianActorCritic
+
+FORMATS = ("sb3", "cleanrl")
+_LAYER = re.compile(r"^(?P<net>.+)\.(?P<index>\d+)\.(?P<param>weight|bias)$")
+
+
+@dataclass
+class ImportedPolicy:
+    """A foreign policy mapped onto this project's actor-critic, with where it came from."""
+
+    policy: GaussianActorCritic
+    activation: str
+    source: dict[str, Any] = field(default_factory=dict)
+
+
+def _load_weights(data: bytes, where: str) -> dict[str, torch.Tensor]:
+    try:
+        state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+    except Exception as err:  # noqa: BLE001 - torch raises several types; weights_only refusals among them
+        raise MiktError(f"{where}: not a plain state dict of tensors (refused without unpickling: "
+                        f"{type(err).__name__})") from None
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise MiktError(f"{where}: expected a state dict of tensors")
+    return dict(state)
+
+
+def _stack(state: dict[str, torch.Tensor], prefix: str, where: str) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """The Linear layers of an nn.Sequential saved under `prefix`, in order."""
+    layers: dict[int, dict[str, torch.Tensor]] = {}
+    for key, value in state.items():
+        if key.startswith(prefix + "."):
+            m = _LAYER.match(key)
+            if not m or m.group("net") != prefix:
+                raise MiktError(f"{where}: unexpected tensor '{key}' in '{prefix}'")
+            layers.setdefault(int(m.group("index")), {})[m.group("param")] = value
+    if not layers:
+        raise MiktError(f"{where}: no layers under '{prefix}'")
+    out = []
+    for index in sorted(layers):
+        if set(layers[index]) != {"weight", "bias"}:
+            raise MiktError(f"{where}: layer '{prefix}.{index}' lacks a weight or a bias")
+        out.append((layers[index]["weight"], layers[index]["bias"]))
+    return out
+
+
+def _assemble(pi_hidden: list[tuple], pi_head: tuple, vf_hidden: list[tuple], vf_head: tuple,
+              log_std: torch.Tensor, activation: str, where: str) -> GaussianActorCritic:
+    obs_dim, act_dim = pi_hidden[0][0].shape[1], pi_head[0].shape[0]
+    sizes_pi = [w.shape[0] for w, _ in pi_hidden]
+    sizes_vf = [w.shape[0] for w, _ in vf_hidden]
+    if vf_hidden[0][0].shape[1] != obs_dim or vf_head[0].shape[0] != 1:
+        raise MiktError(f"{where}: the value network reads {vf_hidden[0][0].shape[1]} inputs (policy: {obs_dim}) "
+                        f"and gives {vf_head[0].shape[0]} outputs (expected 1)")
+    policy = GaussianActorCritic(obs_dim, act_dim, sizes_pi, sizes_vf, activation)
+    state = {"log_std": log_std.reshape(-1), "obs_normalizer.mean": torch.zeros(obs_dim, dtype=torch.float64),
+             "obs_normalizer.var": torch.ones(obs_dim, dtype=torch.float64),
+             "obs_normalizer.count": torch.tensor(0.0, dtype=torch.float64)}
+    for net, hidden, head in (("pi", pi_hidden, pi_head), ("vf", vf_hidden, vf_head)):
+        for j, (w, b) in enumerate(hidden):
+            state[f"{net}.hidden.{j}.weight"], state[f"{net}.hidden.{j}.bias"] = w, b
+        state[f"{net}.head.weight"], state[f"{net}.head.bias"] = head
+    try:
+        policy.load_state_dict({k: v.float() if k.startswith(("pi.", "vf.", "log_std")) else v
+                                for k, v in state.items()})
+    except RuntimeError as err:
+        raise MiktError(f"{where}: layer shapes do not chain: {str(err).splitlines()[-1].strip()}") from None
+    return policy
+
+
+def read_sb3_zip(path: Path) -> ImportedPolicy:
+    where = str(path)
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+            if "policy.pth" not in names or "data" not in names:
+                raise MiktError(f"{where}: not a Stable-Baselines3 model zip (no 'data' or 'policy.pth')")
+            data_text = archive.read("data").decode("utf-8")
+            weights = archive.read("policy.pth")
+            version = archive.read("_stable_baselines3_version").decode().strip() \
+                if "_stable_baselines3_version" in names else None
+    except (zipfile.BadZipFile, OSError, UnicodeDecodeError) as err:
+        raise MiktError(f"{where}: not a readable zip: {err}") from None
+    try:
+        data = json.loads(data_text)  # plain JSON: `:serialized:` values stay base64 strings, never unpickled
+    except json.JSONDecodeError as err:
+        raise MiktError(f"{where}: its 'data' is not JSON: {err}") from None
+    kwargs = data.get("policy_kwargs") if isinstance(data, dict) else None
+    activation_text = str(kwargs.get("activation_fn", "")) if isinstance(kwargs, dict) else ""
+    if "ReLU" in activation_text:
+        activation = "relu"
+    elif activation_text == "" or "Tanh" in activation_text:
+        activation = "tanh"  # PPO's MlpPolicy default
+    else:
+        raise MiktError(f"{where}: activation {activation_text!r} is not supported (tanh or relu)")
+    state = _load_weights(weights, f"{where}: policy.pth")
+    if any(k.startswith("mlp_extractor.shared_net") for k in state):
+        raise MiktError(f"{where}: the policy and value networks share a trunk (mlp_extractor.shared_net); "
+                        "MIKT mixes each network's own hidden layers, so only separate networks can be imported")
+    extractor = [k for k in state if "features_extractor" in k]
+    if extractor:
+        raise MiktError(f"{where}: its features extractor has parameters ('{extractor[0]}'); only MlpPolicy's "
+                        "flatten extractor is supported")
+    known = ("mlp_extractor.policy_net.", "mlp_extractor.value_net.", "action_net.", "value_net.", "log_std")
+    unknown = [k for k in state if not k.startswith(known)]
+    if unknown:
+        raise MiktError(f"{where}: unexpected tensor '{unknown[0]}' for an MlpPolicy")
+    for key in ("log_std", "action_net.weight", "action_net.bias", "value_net.weight", "value_net.bias"):
+        if key not in state:
+            raise MiktError(f"{where}: tensor '{key}' is missing (a Gaussian MlpPolicy has it)")
+    policy = _assemble(
+        _stack(state, "mlp_extractor.policy_net", where), (state["action_net.weight"], state["action_net.bias"]),
+        _stack(state, "mlp_extractor.value_net", where), (state["value_net.weight"], state["value_net.bias"]),
+        state["log_std"], activation, where)
+    return ImportedPolicy(policy, activation, {"format": "sb3", "sb3_version": version})
+
+
+def read_cleanrl(path: Path) -> ImportedPolicy:
+    where = str(path)
+    state = _load_weights(Path(path).read_bytes(), where)
+    unknown = [k for k in state if not k.startswith(("actor_mean.", "critic.", "actor_logstd"))]
+    if unknown:
+        raise MiktError(f"{where}: unexpected tensor '{unknown[0]}' for ppo_continuous_action's Agent")
+    if "actor_logstd" not in state:
+        raise MiktError(f"{where}: tensor 'actor_logstd' is missing")
+    actor, critic = _stack(state, "actor_mean", where), _stack(state, "critic", where)
+    policy = _assemble(actor[:-1], actor[-1], critic[:-1], critic[-1], state["actor_logstd"], "tanh", where)
+    return ImportedPolicy(policy, "tanh", {"format": "cleanrl"})
+
+
+def read_obs_stats(path: Path, obs_dim: int) -> dict[str, torch.Tensor]:
+    """`{"mean": [...], "var": [...], "count": n}` (count optional) as the normaliser's buffers."""
+    try:
+        data = json.loads(Path(path).read_text())
+        mean = torch.tensor(data["mean"], dtype=torch.float64)
+        var = torch.tensor(data["var"], dtype=torch.float64)
+        count = torch.tensor(float(data.get("count", 1e6)), dtype=torch.float64)
+    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+        raise MiktError(f"{path}: expected JSON with 'mean' and 'var' lists (and optionally 'count'): {err}") from None
+    if mean.shape != (obs_dim,) or var.shape != (obs_dim,):
+        raise MiktError(f"{path}: statistics for {mean.numel()}/{var.numel()} dims, the policy reads {obs_dim}")
+    if not bool(torch.isfinite(mean).all() and torch.isfinite(var).all() and (var >= 0).all()):
+        raise MiktError(f"{path}: statistics must be finite, with var ≥ 0")
+    return {"mean": mean, "var": var, "count": count}
+
+
+def read_foreign_policy(path: Path, fmt: str, obs_stats: Path | None) -> ImportedPolicy:
+    if not Path(path).is_file():
+        raise MiktError(f"{path}: no such file")
+    if fmt not in FORMATS:
+        raise MiktError(f"unknown format '{fmt}'; known: {', '.join(FORMATS)}")
+    imported = read_sb3_zip(path) if fmt == "sb3" else read_cleanrl(path)
+    imported.source["file"] = Path(path).name
+    imported.source["file_sha256"] = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    if obs_stats is not None:
+        stats = read_obs_stats(obs_stats, imported.policy.obs_normalizer.mean.shape[0])
+        with torch.no_grad():
+            for key, value in stats.items():
+                getattr(imported.policy.obs_normalizer, key).copy_(value)
+        imported.source["obs_stats"] = Path(obs_stats).name
+    return imported
