@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import typer
+from rich.live import Live
+from rich.table import Table
 
 from miktcli.cli.common import DEFAULT_REGISTRY, RegistryOption, command_line, setup_torch
-from miktcli.cli.console import err, print_data
+from miktcli.cli.console import err, print_data, print_error
+from miktcli.errors import MiktError
 
 HELP = """Run a study grid (pairs × methods × seeds), resumably, and write results.md with plots.
 
@@ -15,14 +19,58 @@ Examples:
 
   mikt study benchmarks/grids/four-to-eight.toml
 
+  mikt study benchmarks/grids/paper-2m.toml --workers 16          # local Ray, 16 cells at once
+
+  ray start --head && mikt study grid.toml --address auto         # an existing Ray cluster
+
   mikt study benchmarks/grids/four-to-eight.toml --report-only
 """
+
+
+def _duration(seconds: float | None) -> str:
+    if seconds is None:
+        return "—"
+    minutes, secs = divmod(int(seconds), 60)
+    return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}"
+
+
+def _progress_table(cells) -> Table:
+    table = Table("cell (teachers > target | method | seed)", "run", "state", "steps", "return", "steps/s", "ETA",
+                  title="mikt study on Ray", title_justify="left")
+    for c in cells:
+        ret = "—" if c.return_mean is None else f"{c.return_mean:.1f}"
+        sps = "—" if c.steps_per_sec is None else f"{c.steps_per_sec:.0f}"
+        table.add_row(c.key, c.run_id, c.state, f"{c.steps:,}/{c.total_steps:,}", ret, sps, _duration(c.eta_seconds))
+    return table
+
+
+class _PlainProgress:
+    """One line per cell whose steps moved, at most every 30 s, when stderr is not a terminal."""
+
+    def __init__(self):
+        self.shown: dict[str, tuple[int, str]] = {}
+        self.last = 0.0
+
+    def __call__(self, cells) -> None:
+        if time.monotonic() - self.last < 30:
+            return
+        self.last = time.monotonic()
+        for c in cells:
+            if self.shown.get(c.run_id) != (c.steps, c.state):
+                self.shown[c.run_id] = (c.steps, c.state)
+                err.print(f"{c.key}: {c.run_id} {c.state} {c.steps:,}/{c.total_steps:,} steps"
+                          + ("" if c.return_mean is None else f", return {c.return_mean:.1f}"))
 
 
 def study(
     grid_file: Path = typer.Argument(..., help="Grid TOML file."),
     out: Path = typer.Option(None, "--out", help="Results folder (default: benchmarks/results/GRID-NAME)."),
     report_only: bool = typer.Option(False, "--report-only", help="Only aggregate what has finished."),
+    workers: int = typer.Option(None, "--workers", min=1, help="Run cells in parallel on a local Ray instance "
+                                "with this many CPUs (needs `pip install 'mikt[ray]'`)."),
+    address: str = typer.Option(None, "--address", help="Run cells on an existing Ray cluster: auto or HOST:PORT."),
+    chunk_iterations: int = typer.Option(20, "--chunk-iterations", min=1,
+                                         help="On Ray: iterations per task before a cell's files come back."),
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     from miktcli.cli.transfer import train_transfer_run
@@ -30,19 +78,57 @@ def study(
     from miktcli.workflows.study import Study
 
     setup_torch()
-    reg = registry
     grid = load_grid(grid_file)
-    st = Study(grid, out or Path("benchmarks/results") / grid.name, reg)
-    if not report_only:
+    st = Study(grid, out or Path("benchmarks/results") / grid.name, registry)
+    if report_only:
+        pass
+    elif workers is None and address is None:  # embedded: serial, in this process, no Ray
         total = len(st.distinct_cells())
         done = 0
-        for key, run, what in st.execute(command_line(), lambda r: train_transfer_run(r, reg, grid.eval_episodes)):
+        for key, run, what in st.execute(command_line(),
+                                         lambda r: train_transfer_run(r, registry, grid.eval_episodes)):
             if what in ("done", "finished"):
                 done += 1
                 err.print(f"[{done}/{total}] {key}: {run.id} completed")
                 st.report()  # refreshed after every cell, so an interruption leaves a current report
             else:
                 err.print(f"{key}: {what} {run.id}")
+    else:
+        _run_on_ray(st, registry, workers, address, grid.eval_episodes, chunk_iterations)
     path = st.report()
     err.print(f"wrote {path}")
     print_data(path)
+
+
+def _run_on_ray(st, registry: Path, workers: int | None, address: str | None, eval_episodes: int,
+                chunk_iterations: int) -> None:
+    from miktcli.workflows.ray_executor import require_ray, run_cells_on_ray
+
+    require_ray()  # before any run folder is created: a clear error naming the extra
+    cells = st.prepare(command_line())
+    failed = []
+    live = Live(console=err, refresh_per_second=2, transient=False) if err.is_terminal else None
+    show = (lambda cells: live.update(_progress_table(cells))) if live else _PlainProgress()
+    try:
+        if live:
+            live.start()
+        for progress in run_cells_on_ray(registry, cells, workers=workers, address=address,
+                                         eval_episodes=eval_episodes, chunk_iterations=chunk_iterations,
+                                         on_progress=show):
+            if progress.state == "failed":
+                failed.append(progress)
+            else:
+                st.report()
+            if not live:
+                err.print(f"{progress.key}: {progress.run_id} {progress.state}")
+    except KeyboardInterrupt:
+        raise MiktError("interrupted; every cell keeps its last handed-back checkpoint",
+                        hint="run the same command again to resume the study") from None
+    finally:
+        if live:
+            live.stop()
+    for progress in failed:
+        print_error(f"{progress.key}: {progress.run_id} failed: {progress.error}")
+    if failed:
+        raise MiktError(f"{len(failed)} cell(s) failed; the others are reported",
+                        hint="see `mikt inspect RUN` for each failed run")

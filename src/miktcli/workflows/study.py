@@ -77,15 +77,14 @@ class Study:
         except MiktError:
             return None
 
-    def execute(self, command: str, train: Callable[[Run], Any]) -> Iterator[tuple[str, Run, str]]:
-        """Run every unfinished cell; yields (cell, run, what happened). `train` trains and finishes a run."""
+    def prepare(self, command: str) -> list[tuple[str, Run]]:
+        """Check every teacher, create the run folder of every distinct cell that has none (recorded in
+        state.json), and return (cell, run) for each, finished ones included. Nothing trains here."""
         self.check_teachers()
+        cells = []
         for pair, method, seed in self.distinct_cells():
             key = cell_key(pair, method, seed)
             run = self.run_of(key)
-            if run is not None and run.card.status == "completed":
-                yield key, run, "done"
-                continue
             if run is None:
                 run = start_transfer(
                     self.registry, to=pair.to, method=method.method,
@@ -93,9 +92,17 @@ class Study:
                     seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, options=method.options,
                 )
                 self._remember(key, run.id)
-                yield key, run, "start"
-            else:
-                yield key, run, "resume"
+            cells.append((key, run))
+        return cells
+
+    def execute(self, command: str, train: Callable[[Run], Any]) -> Iterator[tuple[str, Run, str]]:
+        """The embedded executor: every unfinished cell in turn, in this process. Yields (cell, run, what
+        happened); `train` trains and finishes a run."""
+        for key, run in self.prepare(command):
+            if run.card.status == "completed":
+                yield key, run, "done"
+                continue
+            yield key, run, "resume" if run.card.steps_done else "start"
             train(run)
             yield key, open_run(self.registry, run.id), "finished"
 

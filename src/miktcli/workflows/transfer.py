@@ -81,8 +81,24 @@ def start_transfer(
 def train_transfer(run: Run, registry: Path, eval_episodes: int) -> Generator[Event, None, dict[str, Any]]:
     """Train a transfer run to its end (resuming from its checkpoint), then evaluate and save its student.
     Yields each iteration's metrics and the phases; returns the run's result."""
+    result = yield from train_transfer_chunk(run, registry, eval_episodes, max_iterations=None)
+    assert result is not None
+    return result
+
+
+def train_transfer_chunk(run: Run, registry: Path, eval_episodes: int,
+                         max_iterations: int | None) -> Generator[Event, None, dict[str, Any] | None]:
+    """Train at most `max_iterations` more iterations (all, for None), checkpointing each; if that reaches the
+    end of the run, evaluate and save its student and return the result, else return None (the run stays
+    resumable: a distributed study trains its cells in such chunks and hands each chunk's files back)."""
     with Job(run, registry) as job:
-        yield from job.iterations()
+        done = 0
+        for metrics in job.iterations():
+            yield metrics
+            done += 1
+            if max_iterations is not None and done >= max_iterations \
+                    and job.trainer.iteration < job.trainer.num_iterations:
+                return None
         yield Phase("evaluate", f"{eval_episodes} episodes")
         return finish_transfer(job, eval_episodes)
 

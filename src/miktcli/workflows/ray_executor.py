@@ -1,0 +1,247 @@
+"""A study's cells on Ray: in parallel on one machine (`--workers N`) or on a cluster (`--address`).
+
+No shared filesystem is assumed. The driver's registry is the source of truth and `state.json` has one writer
+(the driver). Each cell trains in *chunks*: a Ray task (1 CPU, one torch thread) receives the cell's run folder
+and the teacher files it needs (as bytes, verified by sha256 on arrival), trains a few iterations in a
+temporary registry, and hands the whole run folder back; the driver writes it atomically and sends the next
+chunk. A chunk that dies with its worker or node is sent again from the last folder handed back, so a lost
+worker costs at most one chunk. Resume is exact (checkpoints hold the envs' state), so a cell trained in chunks
+on Ray has the same metrics as one trained in one go.
+
+Ray is an optional extra: `pip install 'mikt[ray]'`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from miktcli.errors import MiktError
+from miktcli.registry.files import write_bytes_atomic
+from miktcli.registry.runs import Run, RunLock, open_run
+from miktcli.registry.teachers import resolve
+from miktcli.workflows.session import run_to_end
+from miktcli.workflows.transfer import train_transfer_chunk
+
+CHUNK_ITERATIONS = 20  # iterations per task: ~40k steps, about a minute here; a lost worker costs at most this
+MAX_ATTEMPTS = 3  # tries of one chunk when workers die under it
+# Tests only: "RUN:CHUNK:MARKER" in the driver's environment makes the first try of that run's CHUNK-th chunk
+# (counted from 0 in this driver session) kill its worker outright, to prove the cell is sent again.
+FAULT_ENV = "MIKT_RAY_FAULT"
+ENV_FORWARD = ("MUJOCO_GL", "PYOPENGL_PLATFORM", "MIKT_ENVSPECS")
+
+
+@dataclass
+class CellProgress:
+    """What the driver shows for one cell."""
+
+    key: str
+    run_id: str
+    total_steps: int
+    steps: int = 0
+    return_mean: float | None = None
+    steps_per_sec: float | None = None
+    state: str = "queued"  # queued | training | retrying | completed | failed
+    attempts: int = 0  # tries of the chunk in flight (workers that died under it, plus one)
+    error: str | None = None
+    started: float = field(default_factory=time.monotonic)
+
+    @property
+    def eta_seconds(self) -> float | None:
+        if not self.steps_per_sec or self.state != "training":
+            return None
+        return (self.total_steps - self.steps) / self.steps_per_sec
+
+
+def ray_available() -> bool:
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def require_ray():
+    try:
+        import ray
+    except ImportError:
+        raise MiktError("studies on Ray need the ray extra", hint="pip install 'mikt[ray]'") from None
+    return ray
+
+
+# --- the task (runs on a worker) ------------------------------------------------------------------------
+
+def _folder_files(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file() and p.name != "lock"}
+
+
+def _maybe_fail_for_test(run_id: str, chunk: int, spec: str | None) -> None:
+    if spec and spec.count(":") == 2:
+        fault_run, fault_chunk, marker = spec.split(":")
+        if fault_run == run_id and int(fault_chunk) == chunk and not Path(marker).exists():
+            Path(marker).write_text("killed")
+            os._exit(1)  # the worker process dies as if killed: no exception, no cleanup
+
+
+def train_chunk_task(run_id: str, run_files: dict[str, bytes], teacher_files: dict[str, tuple[bytes, str]],
+                     chunk: int, iterations: int, eval_episodes: int, fault: str | None = None) -> dict[str, bytes]:
+    """Train one chunk of a cell in a private temporary registry; return the run folder's files."""
+    torch.set_num_threads(1)
+    _maybe_fail_for_test(run_id, chunk, fault)
+    with tempfile.TemporaryDirectory(prefix="mikt-cell-") as tmp:
+        registry = Path(tmp)
+        for relative, (data, sha) in teacher_files.items():
+            if hashlib.sha256(data).hexdigest() != sha:
+                raise MiktError(f"teacher file {relative} arrived damaged (sha256 mismatch)")
+            write_bytes_atomic(registry / "teachers" / relative, data)
+        folder = registry / "runs" / run_id
+        for name, data in run_files.items():
+            write_bytes_atomic(folder / name, data)
+        run = open_run(registry, run_id)
+        run_to_end(train_transfer_chunk(run, registry, eval_episodes, max_iterations=iterations))
+        return _folder_files(folder)
+
+
+# --- the driver -----------------------------------------------------------------------------------------
+
+def _teacher_payload(registry: Path, run: Run) -> dict[str, tuple[bytes, str]]:
+    payload = {}
+    for ref in run.card.teachers:
+        path = resolve(registry, f"{ref.name}@v{ref.version}")
+        data = path.read_bytes()
+        payload[f"{ref.name}/{path.name}"] = (data, hashlib.sha256(data).hexdigest())
+    return payload
+
+
+def _write_back(run: Run, files: dict[str, bytes]) -> None:
+    """The worker's run folder, written atomically file by file; run.json last so it never describes more
+    than the checkpoint and metrics beside it."""
+    for name in sorted(files, key=lambda n: n == "run.json"):
+        if "/" in name or name.startswith("."):
+            raise MiktError(f"worker returned an unexpected file name {name!r} for {run.id}")
+        write_bytes_atomic(run.path / name, files[name])
+
+
+def _update_progress(progress: CellProgress, files: dict[str, bytes]) -> str:
+    card = json.loads(files["run.json"])
+    progress.steps = card["steps_done"]
+    lines = [ln for ln in files.get("metrics.jsonl", b"").decode().splitlines() if ln.strip()]
+    if lines:
+        last = json.loads(lines[-1])
+        progress.return_mean, progress.steps_per_sec = last.get("return_mean"), last.get("steps_per_sec")
+    return card["status"]
+
+
+def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: int | None, address: str | None,
+                     eval_episodes: int, chunk_iterations: int = CHUNK_ITERATIONS,
+                     on_progress: Callable[[list[CellProgress]], None] | None = None) -> Iterator[CellProgress]:
+    """Train the unfinished `cells` on Ray; yields each cell's progress when it completes or fails.
+
+    Starts a local Ray instance with `workers` CPUs (and stops it after) unless `address` names a running
+    cluster. Ctrl-C cancels the tasks and leaves every cell resumable from its last handed-back chunk."""
+    ray = require_ray()
+    env_vars = {k: os.environ[k] for k in ENV_FORWARD if k in os.environ}
+    env_vars.update({"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MIKT_THREADS": "1"})
+    started_here = not ray.is_initialized() and address is None
+    try:
+        if address is not None:
+            ray.init(address=address, runtime_env={"env_vars": env_vars}, logging_level="ERROR",
+                     log_to_driver=False)
+        elif not ray.is_initialized():
+            ray.init(num_cpus=workers, include_dashboard=False, runtime_env={"env_vars": env_vars},
+                     logging_level="ERROR", log_to_driver=False)
+    except Exception as err:  # noqa: BLE001 - connection and start-up failures come in many types
+        raise MiktError(f"could not start or reach Ray ({address or 'local'}): {type(err).__name__}: {err}",
+                        hint="for a cluster, start it with `ray start --head` and pass --address auto") from None
+    task = ray.remote(num_cpus=1, max_retries=0)(train_chunk_task)
+    system_errors = tuple(getattr(ray.exceptions, name) for name in (
+        "WorkerCrashedError", "NodeDiedError", "ObjectLostError", "RaySystemError", "OwnerDiedError",
+        "LocalRayletDiedError") if hasattr(ray.exceptions, name))
+
+    pending = [(key, run) for key, run in cells if run.card.status != "completed"]
+    progress = {run.id: CellProgress(key, run.id, run.card.total_steps, run.card.steps_done) for key, run in pending}
+    runs = {run.id: run for _, run in pending}
+    locks: dict[str, RunLock] = {}
+    chunks: dict[str, int] = {run_id: 0 for run_id in runs}
+    in_flight: dict[Any, str] = {}
+    queue = list(runs)
+    capacity = max(1, int(ray.cluster_resources().get("CPU", workers or 1)))
+
+    def submit(run_id: str) -> None:
+        run = open_run(registry, run_id)
+        runs[run_id] = run
+        files = _folder_files(run.path)
+        ref = task.remote(run_id, files, _teacher_payload(registry, run), chunks[run_id], chunk_iterations,
+                          eval_episodes, os.environ.get(FAULT_ENV))
+        in_flight[ref] = run_id
+        p = progress[run_id]
+        p.attempts += 1
+        if p.state == "queued":
+            p.state = "training"
+
+    try:
+        for run_id in runs:
+            locks[run_id] = RunLock(runs[run_id]).acquire()  # no local process may train them meanwhile
+        while queue or in_flight:
+            while queue and len(in_flight) < capacity:
+                submit(queue.pop(0))
+            if on_progress:
+                on_progress(list(progress.values()))
+            done, _ = ray.wait(list(in_flight), num_returns=1, timeout=5.0)
+            if not done:
+                continue
+            ref = done[0]
+            run_id = in_flight.pop(ref)
+            p = progress[run_id]
+            try:
+                files = ray.get(ref)
+            except system_errors as err:
+                if p.attempts < MAX_ATTEMPTS:
+                    p.state = "retrying"  # again from the last folder handed back: the driver's copy
+                    submit(run_id)
+                    continue
+                p.state, p.error = "failed", f"workers died {MAX_ATTEMPTS} times under one chunk: {err}"
+                runs[run_id].save_card(status="failed", error=p.error)
+                locks.pop(run_id).release()
+                yield p
+                continue
+            except ray.exceptions.RayTaskError as err:
+                cause = err.cause if isinstance(getattr(err, "cause", None), BaseException) else err
+                p.state, p.error = "failed", f"{type(cause).__name__}: {cause}"
+                runs[run_id].save_card(status="failed", error=p.error)
+                locks.pop(run_id).release()
+                yield p
+                continue
+            _write_back(runs[run_id], files)
+            status = _update_progress(p, files)
+            chunks[run_id] += 1
+            p.attempts = 0
+            if status == "completed":
+                p.state = "completed"
+                locks.pop(run_id).release()
+                yield p
+            else:
+                p.state = "training"
+                submit(run_id)
+        if on_progress:
+            on_progress(list(progress.values()))
+    except KeyboardInterrupt:
+        for ref in list(in_flight):
+            ray.cancel(ref, force=True)
+        for run_id in locks:
+            open_run(registry, run_id).save_card(status="interrupted")
+        raise
+    finally:
+        for lock in locks.values():
+            lock.release()
+        if started_here and ray.is_initialized():
+            ray.shutdown()
