@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from miktcli.envs import make_env
-from miktcli.evaluation import evaluate
+from miktcli.evaluation import run_episodes
 from miktcli.policies import GaussianActorCritic
 from miktcli.ppo import PPOConfig, PPOTrainer
 
@@ -63,7 +63,7 @@ def train_mikt(env_name: str, steps: int, seed: int, overrides: dict, episodes: 
     trainer.close()
     agent.obs_normalizer.frozen = True
     with torch.no_grad():
-        res = evaluate(lambda o: agent.act(o, True), spec_env, episodes, EVAL_SEED + seed,
+        res = run_episodes(lambda o: agent.act(o, True), spec_env, episodes, EVAL_SEED + seed,
                        clip_actions=overrides.get("clip_actions_for_env", False))
     spec_env.close()
     return {"curve": curve, "eval": res.summary()}
@@ -126,7 +126,7 @@ def train_sb3(env_name: str, steps: int, seed: int, episodes: int) -> dict:
         action, _ = model.predict(norm.astype(np.float32), deterministic=True)
         return torch.as_tensor(action)
 
-    res = evaluate(act, env, episodes, EVAL_SEED + seed, clip_actions=True)  # SB3 clips for the env
+    res = run_episodes(act, env, episodes, EVAL_SEED + seed, clip_actions=True)  # SB3 clips for the env
     env.close()
     return {"curve": cb.curve, "eval": res.summary()}
 
