@@ -35,6 +35,7 @@ method = "vpg"
 
 @pytest.fixture(scope="module")
 def local_ray():
+    os.environ.setdefault("RAY_worker_niceness", "0")
     ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR", log_to_driver=False,
              runtime_env={"env_vars": {"OMP_NUM_THREADS": "1"}})
     yield

@@ -157,6 +157,8 @@ def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: i
             ray.init(address=address, runtime_env={"env_vars": env_vars}, logging_level="ERROR",
                      log_to_driver=False)
         elif not ray.is_initialized():
+            # Ray starts its workers at niceness 15; here they *are* the work, so they compete as equals.
+            os.environ.setdefault("RAY_worker_niceness", "0")
             ray.init(num_cpus=workers, include_dashboard=False, runtime_env={"env_vars": env_vars},
                      logging_level="ERROR", log_to_driver=False)
     except Exception as err:  # noqa: BLE001 - connection and start-up failures come in many types
