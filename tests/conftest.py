@@ -12,3 +12,21 @@ def registry(tmp_path, monkeypatch):
     reg = tmp_path / "registry"
     monkeypatch.setenv("MIKT_REGISTRY", str(reg))
     return reg
+
+
+@pytest.fixture()
+def ctrl_c_at_second_update(monkeypatch):
+    """Training raises KeyboardInterrupt (as Ctrl-C would) in its second update; call the returned function
+    to let training run normally again."""
+    from miktcli.ppo import PPOTrainer
+
+    original, calls = PPOTrainer.update, {"n": 0}
+
+    def interrupted(self, batch):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return original(self, batch)
+
+    monkeypatch.setattr(PPOTrainer, "update", interrupted)
+    return lambda: monkeypatch.setattr(PPOTrainer, "update", original)

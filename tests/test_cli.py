@@ -121,19 +121,7 @@ def test_methods_and_ablations_are_recorded_and_change_what_is_trained(
     assert config["ppo"]["clip_actions_for_env"] is False
 
 
-def test_ctrl_c_keeps_the_last_checkpoint_and_resumes(registry, monkeypatch):
-    from miktcli.ppo import PPOTrainer
-
-    original = PPOTrainer.update
-    calls = {"n": 0}
-
-    def interrupted(self, batch):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return original(self, batch)
-
-    monkeypatch.setattr(PPOTrainer, "update", interrupted)
+def test_ctrl_c_keeps_the_last_checkpoint_and_resumes(registry, ctrl_c_at_second_update):
     r = mikt("teacher", "train", "hopper", "--steps", 6144, code=1)
     assert "interrupted; run1 keeps its last complete checkpoint" in r.output
     card = json.loads(mikt("runs", "--json").stdout)[0]

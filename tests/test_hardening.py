@@ -297,25 +297,14 @@ def test_reserved_and_bad_names_are_refused(registry, name):
 # 11. resume is exact -----------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("env", ["hopper", "centipede-four"])
-def test_a_resumed_run_ends_exactly_like_an_uninterrupted_one(registry, monkeypatch, env):
-    from miktcli.ppo import PPOTrainer
+def test_a_resumed_run_ends_exactly_like_an_uninterrupted_one(registry, ctrl_c_at_second_update, env):
     from miktcli.registry.runs import open_run
 
+    mikt("teacher", "train", env, "--steps", 6144, "--name", "resumed", code=1)  # Ctrl-C in the 2nd update
+    ctrl_c_at_second_update()  # from here on training runs normally
+    mikt("teacher", "train", "--resume", "run1")
     mikt("teacher", "train", env, "--steps", 6144, "--name", "straight")
-    original = PPOTrainer.update
-    calls = {"n": 0}
-
-    def interrupted(self, batch):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return original(self, batch)
-
-    monkeypatch.setattr(PPOTrainer, "update", interrupted)
-    mikt("teacher", "train", env, "--steps", 6144, "--name", "resumed", code=1)
-    monkeypatch.setattr(PPOTrainer, "update", original)
-    mikt("teacher", "train", "--resume", "run2")
     keys = ("return_mean", "length_mean", "episodes", "loss_policy", "loss_value", "approx_kl")
-    straight = [[m[k] for k in keys] for m in open_run(registry, "run1").read_metrics()]
-    resumed = [[m[k] for k in keys] for m in open_run(registry, "run2").read_metrics()]
+    resumed = [[m[k] for k in keys] for m in open_run(registry, "run1").read_metrics()]
+    straight = [[m[k] for k in keys] for m in open_run(registry, "run2").read_metrics()]
     assert len(straight) == 3 and straight == resumed

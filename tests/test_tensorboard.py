@@ -48,21 +48,11 @@ def test_tensorboard_reads_runs_and_study_trees(registry, tmp_path):
     assert any(p.name.startswith("events.out.tfevents") for p in vpg.iterdir())
 
 
-def test_resume_rewrites_events_without_duplicates(registry, monkeypatch):
-    from miktcli.ppo import PPOTrainer
+def test_resume_rewrites_events_without_duplicates(registry, ctrl_c_at_second_update):
     from miktcli.registry.runs import open_run
 
-    original, calls = PPOTrainer.update, {"n": 0}
-
-    def interrupted(self, batch):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return original(self, batch)
-
-    monkeypatch.setattr(PPOTrainer, "update", interrupted)
     assert runner.invoke(app, ["teacher", "train", "hopper", "--steps", "6144"]).exit_code == 1
-    monkeypatch.setattr(PPOTrainer, "update", original)
+    ctrl_c_at_second_update()
     assert runner.invoke(app, ["teacher", "train", "--resume", "run1"]).exit_code == 0
     steps = [s for s, tag, _ in read_scalars(open_run(registry, "run1").events_path) if tag == "episode/return_mean"]
     assert steps == [2048, 4096, 6144]
