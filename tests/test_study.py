@@ -91,6 +91,7 @@ def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
     assert mikt["steps_to_baseline_final"] == "4,096"
     assert vpg["steps_to_three_quarters_of_baseline_final"] == "6,144"
     table = (tmp_path / "out" / "results.md").read_text()
+    assert "![every pair](summary.png)" in table and (tmp_path / "out" / "summary.png").exists()
     assert "| method | n | 2,048 | 6,144 |" in table
     assert "| mikt | 2 | -8 ± 3 | 4 ± 3 |" in table
 

@@ -38,26 +38,44 @@ def text_plot(series: dict[str, list[tuple[float, float]]], width: int = 64, hei
     return "\n".join(lines)
 
 
-def png_plot(series: dict[str, list[tuple[float, float]]], path: Path, title: str, ylabel: str,
-             bands: dict[str, list[tuple[float, float, float]]] | None = None) -> Path:
-    """Line plot of series (and optional mean ± std bands as (x, lo, hi)) written atomically to a PNG."""
-    import matplotlib
+Series = dict[str, list[tuple[float, float]]]
+Bands = dict[str, list[tuple[float, float, float]]]
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4.2), dpi=110)
+def _draw(ax, series: Series, title: str, ylabel: str, bands: Bands | None) -> None:
     for name, pts in series.items():
         xs, ys = zip(*pts, strict=True) if pts else ((), ())
         (line,) = ax.plot(xs, ys, label=name, linewidth=1.6)
         if bands and name in bands and bands[name]:
             bx, lo, hi = zip(*bands[name], strict=True)
             ax.fill_between(bx, lo, hi, alpha=0.2, color=line.get_color())
-    ax.set_title(title)
+    ax.set_title(title, fontsize=10)
     ax.set_xlabel("environment steps")
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
+
+
+def png_plot(series: Series, path: Path, title: str, ylabel: str, bands: Bands | None = None) -> Path:
+    """Line plot of series (and optional mean ± std bands as (x, lo, hi)) written atomically to a PNG."""
+    return png_panels([(series, title, bands)], path, ylabel)
+
+
+def png_panels(panels: list[tuple[Series, str, Bands | None]], path: Path, ylabel: str, columns: int = 3) -> Path:
+    """One panel per (series, title, bands), `columns` to a row, in one PNG (a study's summary figure)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cols = min(columns, len(panels))
+    rows = -(-len(panels) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(7 * cols if cols == 1 else 5 * cols, 4.2 * rows), dpi=110,
+                             squeeze=False)
+    for ax, (series, title, bands) in zip(axes.flat, panels, strict=False):
+        _draw(ax, series, title, ylabel, bands)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.set_visible(False)
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from miktcli.plots import png_plot
+from miktcli.plots import png_panels, png_plot
 from miktcli.registry.files import write_bytes_atomic, write_text_atomic
 from miktcli.registry.runs import Run
 from miktcli.registry.tensorboard import EVENTS_FILE, event_records
@@ -79,6 +79,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
              "(0.75 × final when it is positive).",
              ""]
     summary: dict[str, Any] = {}
+    panels = []
     for pair in g.pairs:
         data = {m.name: completed_curves(grid, run_of, pair, m) for m in g.methods}
         base_runs, base_steps, base_curves = data[g.baseline]
@@ -142,6 +143,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
             }
         slug = "".join(c if c.isalnum() else "-" for c in pair.name.replace(" → ", "-to-")).strip("-")
         if series:
+            panels.append((series, pair.name, bands))
             png_plot(series, out_dir / f"curves-{slug}.png", pair.name, "mean episode return", bands)
             lines += ["", f"![learning curves]({f'curves-{slug}.png'})"]
         if weight_series:
@@ -149,6 +151,9 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
                      "p (student)")
             lines += ["", f"![student weights]({f'weights-{slug}.png'})"]
         lines.append("")
+    if len(panels) > 1:  # every pair at a glance: the figure for a README
+        png_panels(panels, out_dir / "summary.png", "mean episode return")
+        lines[2:2] = ["![every pair](summary.png)", ""]
     write_tensorboard_tree(grid, out_dir / "tensorboard", run_of)
     lines += ["## Runs", "", "Cells without teachers (`-`) are one run shared by every pair with that target. "
               "`tensorboard --logdir tensorboard` (in this folder) shows every run, grouped pair / method / seed.", "",
