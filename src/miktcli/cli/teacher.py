@@ -10,6 +10,7 @@ from rich.text import Text
 
 from miktcli.cli.common import (
     DEFAULT_REGISTRY,
+    CompileOption,
     JsonOption,
     NumEnvsOption,
     RegistryOption,
@@ -48,6 +49,7 @@ def train(
     seed: SeedOption = 0,
     name: str = typer.Option(None, "--name", help="Teacher name in the registry (default: the env's name)."),
     num_envs: NumEnvsOption = 1,
+    compile_loss: CompileOption = False,
     hidden: str = typer.Option("64,64", "--hidden", help="Hidden sizes of policy and value MLPs."),
     resume: str = typer.Option(None, "--resume", help="Continue an interrupted teacher run, e.g. run3."),
     registry: RegistryOption = DEFAULT_REGISTRY,
@@ -64,7 +66,7 @@ def train(
         if env is None:
             raise MiktError("give an environment name, or --resume RUN")
         run = start_teacher(registry, env=env, steps=steps, seed=seed, name=name, num_envs=num_envs,
-                            hidden=parse_hidden(hidden), command=command_line())
+                            hidden=parse_hidden(hidden), command=command_line(), compile_loss=compile_loss)
         note_rounding(steps, run.card.total_steps)
     err.print(f"{run.id}: teacher on {run.card.env}, {run.card.total_steps} steps, seed {run.card.seed} → {run.path}")
     try:

@@ -8,6 +8,7 @@ import typer
 
 from miktcli.cli.common import (
     DEFAULT_REGISTRY,
+    CompileOption,
     JsonOption,
     NumEnvsOption,
     RegistryOption,
@@ -89,6 +90,7 @@ def transfer(
         None, "--encoder-width", help="Optional check: must equal each teacher's state dim (read from its card)."),
     hidden: str = typer.Option(None, "--hidden", help="Optional check: must equal the teachers' hidden sizes."),
     num_envs: NumEnvsOption = 1,
+    compile_loss: CompileOption = False,
     eval_episodes: int = typer.Option(10, "--eval-episodes", min=1, help="Episodes for the final evaluation."),
     resume: str = typer.Option(None, "--resume", help="Continue an interrupted transfer run."),
     as_json: JsonOption = False,
@@ -119,6 +121,7 @@ def transfer(
             run = start_transfer(
                 reg, to=to, method=method, teacher_refs=list(teacher or []), steps=steps, seed=seed,
                 command=command_line(), kl_coef=kl_coef, num_envs=num_envs, options=mikt,
+                compile_loss=compile_loss,
                 encoder_widths=list(encoder_width) if encoder_width else None,
                 hidden=parse_hidden(hidden) if hidden else None,
             )

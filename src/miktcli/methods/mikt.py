@@ -113,16 +113,23 @@ class MiktActorCritic(ActorCritic):
         else:
             self.lateral_pi = self.lateral_vf = None
         self.teacher_active = True
-        self.coupling_scale = 1.0
+        self.coupling_scale, self.coupling_on = 1.0, True
+        # The ramp's value as a tensor the loss reads, so a compiled loss (PPOConfig.compile_loss) takes it
+        # as an input instead of compiling again for every new value; not saved (set_progress sets it).
+        self.register_buffer("coupling_weight", torch.tensor(1.0), persistent=False)
 
     # --- schedule -----------------------------------------------------------------------------------
     def set_progress(self, fraction: float) -> None:
         cfg = self.config
         if cfg.coupling_schedule == "constant":
-            self.coupling_scale, self.teacher_active = 1.0, True
+            self.coupling_scale = 1.0
+            self.coupling_weight.fill_(1.0)
+            self.teacher_active = self.coupling_on = True
             return
         ramp = (fraction - cfg.ramp_start) / (cfg.drop_teacher_at - cfg.ramp_start)
         self.coupling_scale = min(max(ramp, 0.0), 1.0)
+        self.coupling_weight.fill_(self.coupling_scale)
+        self.coupling_on = ramp > 0
         self.teacher_active = fraction < cfg.drop_teacher_at
 
     # --- forward ------------------------------------------------------------------------------------
@@ -187,10 +194,10 @@ class MiktActorCritic(ActorCritic):
         mean, value = self._policy(obs, embs, w_pi), self._value(obs, embs, w_vf)
         cfg = self.config
         losses = {}
-        if self.coupling_scale > 0 and (cfg.coupling_pi_coef or cfg.coupling_vf_coef):
+        if self.coupling_on and (cfg.coupling_pi_coef or cfg.coupling_vf_coef):
             coupling = (cfg.coupling_pi_coef * -torch.log(w_pi[:, 0]).mean()
                         + cfg.coupling_vf_coef * -torch.log(w_vf[:, 0]).mean())
-            losses["loss_coupling"] = self.coupling_scale * coupling
+            losses["loss_coupling"] = self.coupling_weight * coupling
         if cfg.mi and cfg.mi_coef:
             mi = sum(dec.neg_log_prob(obs, e).mean() for dec, e in zip(self.decoders, embs, strict=True))
             losses["loss_mi"] = cfg.mi_coef * mi

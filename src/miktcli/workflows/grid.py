@@ -54,6 +54,7 @@ class Grid(BaseModel):
     marks: list[int] = Field(default_factory=list, description="step marks of the results table")
     eval_episodes: int = 10
     baseline: str = Field("vpg", description="the method whose final return the others race to")
+    compile_loss: bool = Field(False, description="every cell's PPO loss through torch.compile (see --compile)")
     pairs: list[PairSpec] = Field(min_length=1)
     methods: list[MethodSpec] = Field(min_length=1)
 

@@ -90,6 +90,7 @@ class Study:
                     self.registry, to=pair.to, method=method.method,
                     teacher_refs=pair.teachers if method.uses_teachers else [], steps=self.grid.steps,
                     seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, options=method.options,
+                    compile_loss=self.grid.compile_loss,
                 )
                 self._remember(key, run.id)
             cells.append((key, run))

@@ -18,10 +18,10 @@ from miktcli.workflows.session import Event, Job, Phase, check_registry_writable
 
 
 def start_teacher(registry: Path, *, env: str, steps: int, seed: int, command: str, name: str | None = None,
-                  num_envs: int = 1, hidden: list[int] | None = None) -> Run:
+                  num_envs: int = 1, hidden: list[int] | None = None, compile_loss: bool = False) -> Run:
     """Check everything, then create the run folder of a teacher (PPO from scratch on `env`)."""
     sizes = hidden or [64, 64]
-    config = RunConfig(ppo=PPOConfig(num_envs=num_envs), pi_hidden=sizes, vf_hidden=sizes,
+    config = RunConfig(ppo=PPOConfig(num_envs=num_envs, compile_loss=compile_loss), pi_hidden=sizes, vf_hidden=sizes,
                        teacher_name=check_name(env if name is None else name))
     return new_run(registry, kind="teacher", env=env, method="ppo", seed=seed, total_steps=steps, config=config,
                    command=command)

@@ -58,7 +58,7 @@ def teacher_ref(t: Teacher) -> TeacherRef:
 def start_transfer(
     registry: Path, *, to: str, method: str, teacher_refs: list[str], steps: int, seed: int, command: str,
     kl_coef: float | None = None, num_envs: int = 1, options: dict[str, Any] | None = None,
-    encoder_widths: list[int] | None = None, hidden: list[int] | None = None,
+    encoder_widths: list[int] | None = None, hidden: list[int] | None = None, compile_loss: bool = False,
 ) -> Run:
     """Check everything a transfer needs, then create its run folder (not yet trained)."""
     m = get_method(method)
@@ -71,7 +71,8 @@ def start_transfer(
     teachers = [load_teacher(registry, ref) for ref in teacher_refs]
     sizes = (check_teachers(teachers, encoder_widths if m.name == "mikt" else None, hidden) if teachers
              else (hidden or DEFAULT_HIDDEN, hidden or DEFAULT_HIDDEN))
-    ppo = PPOConfig(num_envs=num_envs, kl_coef=m.default_kl_coef if kl_coef is None else kl_coef)
+    ppo = PPOConfig(num_envs=num_envs, kl_coef=m.default_kl_coef if kl_coef is None else kl_coef,
+                    compile_loss=compile_loss)
     config = RunConfig(ppo=ppo, pi_hidden=sizes[0], vf_hidden=sizes[1],
                        options=None if parsed is None else parsed.model_dump())
     return new_run(registry, kind="transfer", env=to, method=method, seed=seed, total_steps=steps, config=config,
