@@ -308,3 +308,13 @@ def test_a_resumed_run_ends_exactly_like_an_uninterrupted_one(registry, ctrl_c_a
     resumed = [[m[k] for k in keys] for m in open_run(registry, "run1").read_metrics()]
     straight = [[m[k] for k in keys] for m in open_run(registry, "run2").read_metrics()]
     assert len(straight) == 3 and straight == resumed
+
+
+def test_a_prepared_run_that_never_trained_is_not_started_rather_than_stale(registry):
+    from miktcli.registry.runs import open_run
+    from miktcli.workflows.transfer import start_transfer
+
+    run = start_transfer(registry, to="centipede-four", method="vpg", teacher_refs=[], steps=2048, seed=0,
+                         command="test")
+    assert open_run(registry, run.id).status == "not started"
+    assert "not started" in mikt("runs").output

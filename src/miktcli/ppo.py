@@ -153,7 +153,11 @@ def compiled(loss: Callable[..., Any]) -> Callable[..., Any]:
     """`loss` through torch.compile (shapes fixed: every full minibatch has the same). A compile that fails
     (no C++ compiler, an unsupported build) is an error naming the option, never a silent eager fallback."""
     import torch._dynamo
+    import torch._inductor.config
 
+    # Compile in this process: no pool of compile-worker processes beside a trainer that owns one core (and
+    # none left behind in a test session or a Ray worker).
+    torch._inductor.config.compile_threads = 1
     fast = torch.compile(loss, dynamic=False)
 
     def call(*args: Any) -> Any:

@@ -67,7 +67,7 @@ def study(
     out: Path = typer.Option(None, "--out", help="Results folder (default: benchmarks/results/GRID-NAME)."),
     report_only: bool = typer.Option(False, "--report-only", help="Only aggregate what has finished."),
     workers: int = typer.Option(None, "--workers", min=1, help="Run cells in parallel on a local Ray instance "
-                                "with this many CPUs (needs `pip install 'mikt[ray]'`)."),
+                                "with this many CPUs (needs `pip install 'mikt\\[ray]'`)."),
     address: str = typer.Option(None, "--address", help="Run cells on an existing Ray cluster: auto or HOST:PORT."),
     chunk_iterations: int = typer.Option(20, "--chunk-iterations", min=1,
                                          help="On Ray: iterations per task before a cell's files come back."),

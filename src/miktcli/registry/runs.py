@@ -122,9 +122,10 @@ class Run:
 
     @property
     def status(self) -> str:
-        """The card's status, or `stale` for a run marked running whose trainer is gone (SIGKILL, crash)."""
+        """The card's status; for a run marked running that no process holds: `not started` when it has no
+        checkpoint yet (a study's prepared cell), else `stale` (its trainer is gone: SIGKILL, crash)."""
         if self.card.status == "running" and lock_owner(self) is None:
-            return "stale"
+            return "stale" if self.checkpoint_path.exists() else "not started"
         return self.card.status
 
     @property
