@@ -130,16 +130,19 @@ def test_a_signal_during_an_atomic_write_waits_for_the_write(tmp_path):
 
     def fsync_then_ctrl_c(fd):
         original(fd)
-        os.kill(os.getpid(), signal.SIGINT)  # arrives mid-write, before the rename
+        signal.raise_signal(signal.SIGINT)  # arrives mid-write, before the rename, in this thread
 
     import miktcli.registry.files as atomic
 
+    # Python's own Ctrl-C handler, whatever earlier tests' libraries (Ray, torch's compiler) did to SIGINT.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     atomic.os.fsync = fsync_then_ctrl_c
     try:
         with pytest.raises(KeyboardInterrupt):
             write_bytes_atomic(target, b"complete")
     finally:
         atomic.os.fsync = original
+        signal.signal(signal.SIGINT, previous)
     assert target.read_bytes() == b"complete"  # the write finished first, then Ctrl-C was delivered
 
 
