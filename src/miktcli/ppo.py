@@ -158,12 +158,16 @@ def compiled(loss: Callable[..., Any]) -> Callable[..., Any]:
     # Compile in this process: no pool of compile-worker processes beside a trainer that owns one core (and
     # none left behind in a test session or a Ray worker).
     torch._inductor.config.compile_threads = 1
+    # One graph per agent class, shape and schedule phase, shared by every trainer in the process (a serial
+    # study's cells reuse them). Past the limit dynamo would fall back to eager without a word: raise instead.
+    torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 64)
+    torch._dynamo.config.fail_on_recompile_limit_hit = True
     fast = torch.compile(loss, dynamic=False)
 
     def call(*args: Any) -> Any:
         try:
             return fast(*args)
-        except torch._dynamo.exc.TorchDynamoException as err:
+        except (torch._dynamo.exc.TorchDynamoException, torch._dynamo.exc.FailOnRecompileLimitHit) as err:
             reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
             raise MiktError(f"compile_loss: torch.compile failed ({reason}); train without --compile") from err
 
