@@ -122,15 +122,14 @@ class MiktActorCritic(ActorCritic):
     def set_progress(self, fraction: float) -> None:
         cfg = self.config
         if cfg.coupling_schedule == "constant":
-            self.coupling_scale = 1.0
-            self.coupling_weight.fill_(1.0)
-            self.teacher_active = self.coupling_on = True
-            return
-        ramp = (fraction - cfg.ramp_start) / (cfg.drop_teacher_at - cfg.ramp_start)
-        self.coupling_scale = min(max(ramp, 0.0), 1.0)
-        self.coupling_weight.fill_(self.coupling_scale)
-        self.coupling_on = ramp > 0
-        self.teacher_active = fraction < cfg.drop_teacher_at
+            scale, self.teacher_active = 1.0, True
+        else:
+            ramp = (fraction - cfg.ramp_start) / (cfg.drop_teacher_at - cfg.ramp_start)
+            scale, self.teacher_active = min(max(ramp, 0.0), 1.0), fraction < cfg.drop_teacher_at
+        # The float is what diagnostics log; the bool and the tensor are what the loss reads (a compiled loss
+        # guards on the bool, which changes once, and takes the tensor as an input).
+        self.coupling_scale, self.coupling_on = scale, scale > 0
+        self.coupling_weight.fill_(scale)
 
     # --- forward ------------------------------------------------------------------------------------
     def mixing_weights(self) -> tuple[torch.Tensor, torch.Tensor]:
