@@ -137,6 +137,45 @@ def test_ctrl_c_keeps_the_last_checkpoint_and_resumes(registry, ctrl_c_at_second
     assert [m["iteration"] for m in metrics] == [1, 2, 3]
 
 
+def test_the_card_records_which_code_trained_which_steps(registry, ctrl_c_at_second_update, monkeypatch):
+    from miktcli.registry.cards import code_version
+    from miktcli.registry.runs import open_run
+    from miktcli.workflows import session
+
+    mikt("teacher", "train", "hopper", "--steps", 8192, code=1)  # interrupted after 2,048 steps
+    history = json.loads(mikt("inspect", "run1", "--json").stdout)["card"]["code_history"]
+    assert [(h["from_step"], h["code_version"]) for h in history] == [(0, code_version())]
+
+    ctrl_c_at_second_update()
+    monkeypatch.setattr(session, "code_version", lambda: "abc1234")  # as if the checkout moved on
+    mikt("teacher", "train", "--resume", "run1")
+    card = json.loads(mikt("inspect", "run1", "--json").stdout)["card"]
+    assert [(h["from_step"], h["code_version"]) for h in card["code_history"]] == [(0, code_version()),
+                                                                                   (2048, "abc1234")]
+    assert card["code_version"] == code_version()  # the code that created the run
+    # Resuming under the same code (a study's next chunk) adds no segment.
+    history = open_run(registry, "run1").card.code_history
+    assert session.continued_code_history(history, 8192) == history
+    teacher = json.loads(mikt("teacher", "show", "hopper", "--json").stdout)
+    assert teacher["code_history"] == card["code_history"]
+    shown = mikt("inspect", "run1").stdout
+    assert f"{code_version()} from step 0; abc1234 from step 2,048" in shown
+
+
+def test_cards_from_before_the_code_history_say_it_was_not_recorded(registry):
+    from miktcli.registry.cards import describe_code_history
+    from miktcli.registry.runs import open_run
+
+    mikt("transfer", "--to", "hopper", "--method", "vpg", "--steps", 2048, "--eval-episodes", 1)
+    path = registry / "runs" / "run1" / "run.json"
+    old = json.loads(path.read_text())
+    old.pop("code_history")
+    path.write_text(json.dumps(old))
+    card = open_run(registry, "run1").card
+    assert card.code_history == []
+    assert describe_code_history(card.code_history, "f00d123") == "not recorded (run created with f00d123)"
+
+
 def test_tampered_teacher_is_refused_by_transfer(registry):
     mikt("teacher", "train", "hopper", "--steps", 2048)
     path = registry / "teachers" / "hopper" / "v1.safetensors"

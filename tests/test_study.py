@@ -4,6 +4,7 @@ from pathlib import Path
 from typer.testing import CliRunner
 
 from miktcli.cli.app import app
+from miktcli.registry.cards import code_version
 
 runner = CliRunner()
 GRID = Path(__file__).resolve().parents[1] / "benchmarks" / "grids" / "tiny.toml"
@@ -18,6 +19,7 @@ def test_study_runs_resumes_and_reports(registry, tmp_path):
     assert len(state) == 4 and len(set(state.values())) == 4
     table = (out / "results.md").read_text()
     assert "| mikt | 2 |" in table and "| vpg | 2 |" in table
+    assert table.count(f"| {code_version()} from step 0 |") == 4  # which code trained each run
     assert (out / "curves-tiny-to-centipede-four.png").exists()
     assert (out / "weights-tiny-to-centipede-four.png").exists()
     # started again: nothing is redone

@@ -147,9 +147,15 @@ def list_teachers(
 
 
 def render_card(data: dict) -> None:
+    from miktcli.registry.cards import CodeSegment, describe_code_history
+
     table = Table(show_header=False, box=None)
     for key, value in data.items():
-        if isinstance(value, dict):
+        if key == "code_history":
+            if not value:  # imported teachers, and cards from before the history was recorded
+                continue
+            value = describe_code_history([CodeSegment.model_validate(s) for s in value], data["code_version"])
+        elif isinstance(value, dict):
             value = ", ".join(f"{k}={v}" for k, v in value.items())
         table.add_row(key, str(value))
     out.print(table)

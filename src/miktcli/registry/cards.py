@@ -48,6 +48,27 @@ def code_version() -> str:
     return commit + ("+dirty" if dirty else "")
 
 
+class CodeSegment(BaseModel):
+    """The code that trained a run from `from_step` on, until the next segment. A run continued under another
+    commit or other package versions (resumed after an upgrade, a study restarted at a newer commit) gets a
+    new segment; resuming under the same code does not."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    from_step: int = Field(ge=0)
+    code_version: str
+    packages: dict[str, str]
+    started: dt.datetime
+
+
+def describe_code_history(history: list[CodeSegment], created_with: str) -> str:
+    """One line: which commit trained which steps. Cards written before mikt recorded the history (or steps
+    trained before its first segment) say so rather than guess."""
+    parts = [] if history and history[0].from_step == 0 else [f"not recorded (run created with {created_with})"]
+    parts += [f"{s.code_version} from step {s.from_step:,}" for s in history]
+    return "; ".join(parts)
+
+
 class TeacherCard(BaseModel):
     """Stored as JSON in the teacher's safetensors metadata."""
 
@@ -73,6 +94,8 @@ class TeacherCard(BaseModel):
     hyperparameters: dict[str, Any]
     packages: dict[str, str]
     code_version: str
+    # which code trained the source run's steps; empty for imported teachers and older cards
+    code_history: list[CodeSegment] = Field(default_factory=list)
     source_run: str | None = None
     imported_from: dict[str, Any] | None = None  # a teacher trained elsewhere: format, file and its sha256
     created: dt.datetime
@@ -143,7 +166,8 @@ class RunCard(BaseModel):
     command: str
     created: dt.datetime
     updated: dt.datetime
-    code_version: str
+    code_version: str  # the code that created the run; code_history says what trained it
     packages: dict[str, str]
+    code_history: list[CodeSegment] = Field(default_factory=list)
     result: dict[str, Any] = Field(default_factory=dict)
     error: str | None = None

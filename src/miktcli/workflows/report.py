@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from miktcli.plots import png_panels, png_plot
+from miktcli.registry.cards import describe_code_history
 from miktcli.registry.files import write_bytes_atomic, write_text_atomic
 from miktcli.registry.runs import Run
 from miktcli.registry.tensorboard import EVENTS_FILE, event_records
@@ -157,8 +158,12 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
     write_tensorboard_tree(grid, out_dir / "tensorboard", run_of)
     lines += ["## Runs", "", "Cells without teachers (`-`) are one run shared by every pair with that target. "
               "`tensorboard --logdir tensorboard` (in this folder) shows every run, grouped pair / method / seed.", "",
-              "| cell (teachers > target) | method | seed | run |", "|---|---|---|---|"]
-    lines += [f"| {' | '.join(k.split('|'))} | {v} |" for k, v in cell_runs.items()]
+              "| cell (teachers > target) | method | seed | run | trained by (commit from step) |",
+              "|---|---|---|---|---|"]
+    for key, run_id in cell_runs.items():
+        run = run_of(key)
+        code = describe_code_history(run.card.code_history, run.card.code_version) if run is not None else "—"
+        lines.append(f"| {' | '.join(key.split('|'))} | {run_id} | {code} |")
     path = out_dir / "results.md"
     write_text_atomic(path, "\n".join(lines) + "\n")
     write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False))

@@ -17,7 +17,7 @@ from miktcli.errors import MiktError
 from miktcli.methods import get_method
 from miktcli.policies import ActorCritic
 from miktcli.ppo import PPOTrainer
-from miktcli.registry.cards import RunConfig, TeacherRef, code_version, package_versions
+from miktcli.registry.cards import CodeSegment, RunConfig, TeacherRef, code_version, now, package_versions
 from miktcli.registry.runs import Run, RunLock, create_run
 from miktcli.registry.teachers import load_run_teachers
 
@@ -140,7 +140,8 @@ class Job:
     def iterations(self) -> Iterator[dict[str, Any]]:
         """Train to the end, checkpointing after every iteration."""
         run, trainer = self.run, self.trainer
-        run.save_card(status="running", error=None)
+        run.save_card(status="running", error=None,
+                      code_history=continued_code_history(run.card.code_history, trainer.global_step))
         for metrics in trainer.run():
             if math.isfinite(metrics["return_mean"]):
                 self.best_return = max(self.best_return, metrics["return_mean"])
@@ -155,6 +156,15 @@ class Job:
     def final_return(self) -> float | None:
         returns = self.trainer.recent_returns
         return float(sum(returns) / len(returns)) if returns else None
+
+
+def continued_code_history(history: list[CodeSegment], step: int) -> list[CodeSegment]:
+    """The history with this process's code training from `step` on: a new segment only when the code or the
+    packages differ from the last segment's (a study's chunks and plain resumes add nothing)."""
+    current = CodeSegment(from_step=step, code_version=code_version(), packages=package_versions(), started=now())
+    if history and (history[-1].code_version, history[-1].packages) == (current.code_version, current.packages):
+        return history
+    return [*history, current]
 
 
 def build_agent(run: Run, registry: Path) -> ActorCritic:

@@ -46,7 +46,7 @@ def publish_teacher_from_job(job: Job) -> TeacherCard:
         steps=job.trainer.global_step, seed=card.seed, final_return=job.final_return,
         best_return=job.best_return if math.isfinite(job.best_return) else None,
         hyperparameters=job.config.model_dump(), packages=card.packages, code_version=card.code_version,
-        source_run=card.run_id, created=now(), tensors_sha256="",
+        code_history=card.code_history, source_run=card.run_id, created=now(), tensors_sha256="",
     )
     published = publish_teacher(job.registry, teacher, job.agent)
     job.run.save_card(status="completed", result={

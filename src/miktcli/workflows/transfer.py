@@ -115,7 +115,8 @@ def save_student(run: Run, student: GaussianActorCritic, final_return: float | N
         clip_actions_for_env=clip_actions, steps=run.card.steps_done, seed=run.card.seed,
         final_return=final_return, best_return=best_return,
         hyperparameters=run.card.config.model_dump(mode="json"), packages=run.card.packages,
-        code_version=run.card.code_version, source_run=run.id, created=now(), tensors_sha256=tensors_sha256(tensors),
+        code_version=run.card.code_version, code_history=run.card.code_history, source_run=run.id, created=now(),
+        tensors_sha256=tensors_sha256(tensors),
     )
     save_with_card(run.student_path, tensors, card)
     return card
