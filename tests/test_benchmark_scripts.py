@@ -1,0 +1,56 @@
+"""The scripts under benchmarks/ that build committed evidence from run snapshots."""
+
+import importlib.util
+import json
+import shutil
+from pathlib import Path
+
+from test_study import fake_run
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def load_script(name: str):
+    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+GRID = ('name = "{name}"\nsteps = 6144\nseeds = {seeds}\nmarks = [4096, 6144]\nbaseline = "{baseline}"\n{pairs}'
+        '[[methods]]\nname = "mikt"\nmethod = "mikt"\n{extra}')
+
+
+def test_similarity_report_puts_every_teacher_of_the_target_on_the_same_seeds(registry, tmp_path):
+    grids, results = tmp_path / "grids", tmp_path / "results"
+    grids.mkdir()
+    (grids / "main.toml").write_text(GRID.format(
+        name="main", seeds="[0, 1, 2]", baseline="vpg", extra='[[methods]]\nname = "vpg"\nmethod = "vpg"\n',
+        pairs='[[pairs]]\nfrom = ["four"]\nto = "hopper"\n[[pairs]]\nfrom = ["four"]\nto = "ant"\n'))
+    (grids / "sim.toml").write_text(GRID.format(
+        name="sim", seeds="[0, 1]", baseline="mikt", extra="", pairs='[[pairs]]\nfrom = ["far"]\nto = "hopper"\n'))
+    mix = {"p_pi_0": 0.5, "p_vf_0": 0.25}
+    main_cells = {  # seed 2 of the main grid is not on the similarity grid's seeds: left out
+        "four>hopper|mikt|0": fake_run(registry, "hopper", "mikt", 0, [1, 2, 3], 30, mix),
+        "four>hopper|mikt|1": fake_run(registry, "hopper", "mikt", 1, [3, 4, 5], 50, mix),
+        "four>hopper|mikt|2": fake_run(registry, "hopper", "mikt", 2, [100, 100, 100], 999, mix),
+        "->hopper|vpg|0": fake_run(registry, "hopper", "vpg", 0, [0, 0, 1], 10),
+        "four>ant|mikt|0": fake_run(registry, "ant", "mikt", 0, [7, 7, 7], 7, mix),  # another target
+    }
+    sim_cells = {"far>hopper|mikt|0": fake_run(registry, "hopper", "mikt", 0, [0, 1, 1], 5, mix)}
+    for study, cells in (("main", main_cells), ("sim", sim_cells)):
+        (results / study).mkdir(parents=True)
+        (results / study / "state.json").write_text(json.dumps(cells))
+        for run_id in cells.values():  # what benchmarks/snapshot_study.py copies
+            shutil.copytree(registry / "runs" / run_id, results / study / "runs" / run_id)
+    shutil.rmtree(registry)  # the report needs the snapshots only
+
+    path = load_script("similarity_report").similarity_report(results, "main", "sim", grids=grids)
+    rows = {line.split(" | ")[0].strip("| "): line for line in path.read_text().splitlines()
+            if line.startswith("| ") and not line.startswith("| curve")}
+    assert rows.keys() == {"mikt ← four", "mikt ← far", "vpg"}
+    # seeds 0 and 1 only: at 4096 steps 2 and 4, at 6144 3 and 5, mean over training 2 and 4, eval 30 and 50
+    assert rows["mikt ← four"] == "| mikt ← four | 2 | 3 ± 1 | 4 ± 1 | 3 ± 1 | 40 ± 14 | 0.50 / 0.25 |"
+    assert rows["mikt ← far"] == "| mikt ← far | 1 | 1 | 1 | 1 | 5 | 0.50 / 0.25 |"
+    assert rows["vpg"].startswith("| vpg | 1 | 0 | 1 |") and rows["vpg"].endswith("| 10 | — |")
+    assert (path.parent / "similarity-curves.png").exists() and (path.parent / "similarity-weights.png").exists()
