@@ -3,6 +3,10 @@ cell retried from its last handed-back checkpoint. Runs on a local 2-CPU Ray ins
 
 import json
 import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -116,3 +120,27 @@ def test_workers_without_ray_names_the_extra(tmp_path, monkeypatch):
     r = runner.invoke(app, ["study", str(grid), "--out", str(tmp_path / "o"), "--workers", "2"])
     assert r.exit_code == 1 and "pip install 'mikt[ray]'" in r.output
     assert not (registry / "runs" / "run2").exists()  # nothing was created before the check
+
+
+def test_sigterm_stops_a_ray_study_like_ctrl_c(tmp_path):
+    """ray.init replaces the process's SIGTERM handler; the study must still stop cleanly on SIGTERM."""
+    from miktcli.registry.runs import lock_owner, open_run
+
+    registry = tmp_path / "registry"
+    grid = tmp_path / "grid.toml"
+    grid.write_text('name = "long"\nsteps = 2000000\nseeds = [0]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
+                    '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+    proc = subprocess.Popen([sys.executable, "-m", "miktcli", "study", str(grid), "--out", str(tmp_path / "out"),
+                             "--workers", "1"], env={**os.environ, "MIKT_REGISTRY": str(registry)},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if (registry / "runs" / "run1" / "run.json").exists() and lock_owner(open_run(registry, "run1")):
+            break  # Ray is up and the driver holds the cell
+        time.sleep(0.2)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 1, stderr
+    assert "interrupted; every cell keeps its last handed-back checkpoint" in stderr
+    assert open_run(registry, "run1").card.status == "interrupted"

@@ -16,7 +16,9 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import signal
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -141,6 +143,15 @@ def _update_progress(progress: CellProgress, files: dict[str, bytes]) -> str:
     return card["status"]
 
 
+def _restore_sigterm(handler: Any) -> None:
+    """ray.init installs its own SIGTERM handler (sys.exit; a local node's also kills Ray's processes), which
+    bypassed the clean stop: cells were left `running` (then `stale`) and no message said how to resume. The
+    caller's handler goes back (the CLI's raises KeyboardInterrupt, like Ctrl-C), so SIGTERM cancels the tasks,
+    marks the cells interrupted and shuts Ray down in the executor's own `finally`."""
+    if handler is not None and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, handler)
+
+
 def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: int | None, address: str | None,
                      eval_episodes: int, chunk_iterations: int = CHUNK_ITERATIONS,
                      on_progress: Callable[[list[CellProgress]], None] | None = None) -> Iterator[CellProgress]:
@@ -152,6 +163,7 @@ def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: i
     env_vars = {k: os.environ[k] for k in ENV_FORWARD if k in os.environ}
     env_vars.update({"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MIKT_THREADS": "1"})
     started_here = not ray.is_initialized() and address is None
+    sigterm_before = signal.getsignal(signal.SIGTERM)
     try:
         if address is not None:
             ray.init(address=address, runtime_env={"env_vars": env_vars}, logging_level="ERROR",
@@ -164,6 +176,8 @@ def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: i
     except Exception as err:  # noqa: BLE001 - connection and start-up failures come in many types
         raise MiktError(f"could not start or reach Ray ({address or 'local'}): {type(err).__name__}: {err}",
                         hint="for a cluster, start it with `ray start --head` and pass --address auto") from None
+    finally:
+        _restore_sigterm(sigterm_before)
     task = ray.remote(num_cpus=1, max_retries=0)(train_chunk_task)
     system_errors = tuple(getattr(ray.exceptions, name) for name in (
         "WorkerCrashedError", "NodeDiedError", "ObjectLostError", "RaySystemError", "OwnerDiedError",
