@@ -20,3 +20,9 @@ python "$ROOT/benchmarks/train_teachers.py"          # the v2 teachers (skipped 
 for grid in paper-2m paper-2m-controls paper-2m-ablations paper-2m-similarity; do
   mikt study "$ROOT/benchmarks/grids/$grid.toml" --out "$RESULTS/$grid" "${PARALLEL[@]}"
 done
+# The evidence to commit: each finished run's card and metrics beside its study's report, and the
+# teacher-similarity figures (which read those snapshots).
+for grid in paper-2m paper-2m-controls paper-2m-ablations paper-2m-similarity; do
+  python "$ROOT/benchmarks/snapshot_study.py" "$RESULTS/$grid" --registry "$MIKT_REGISTRY"
+done
+python "$ROOT/benchmarks/similarity_report.py" "$RESULTS"
