@@ -123,24 +123,26 @@ def test_workers_without_ray_names_the_extra(tmp_path, monkeypatch):
 
 
 def test_sigterm_stops_a_ray_study_like_ctrl_c(tmp_path):
-    """ray.init replaces the process's SIGTERM handler; the study must still stop cleanly on SIGTERM."""
-    from miktcli.registry.runs import lock_owner, open_run
+    """ray.init replaces the process's SIGTERM handler; the study must still stop cleanly on SIGTERM. On the
+    way: a cell waiting for the one worker shows as `queued`."""
+    from miktcli.registry.runs import open_run
 
     registry = tmp_path / "registry"
     grid = tmp_path / "grid.toml"
-    grid.write_text('name = "long"\nsteps = 2000000\nseeds = [0]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
+    grid.write_text('name = "long"\nsteps = 2000000\nseeds = [0, 1]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
                     '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
     proc = subprocess.Popen([sys.executable, "-m", "miktcli", "study", str(grid), "--out", str(tmp_path / "out"),
-                             "--workers", "1"], env={**os.environ, "MIKT_REGISTRY": str(registry)},
+                             "--workers", "1", "--chunk-iterations", "1"],
+                            env={**os.environ, "MIKT_REGISTRY": str(registry)},
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
-        if (registry / "runs" / "run1" / "run.json").exists() and lock_owner(open_run(registry, "run1")):
-            break  # Ray is up and the driver holds the cell
+        if (registry / "runs" / "run1" / "run.json").exists() and open_run(registry, "run1").card.steps_done:
+            break  # the first chunk of run1 came back
         time.sleep(0.2)
-    time.sleep(1.0)
+    assert open_run(registry, "run2").status == "queued"  # held by the study, waiting for the worker
     proc.send_signal(signal.SIGTERM)
     _, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 1, stderr
     assert "interrupted; every cell keeps its last handed-back checkpoint" in stderr
-    assert open_run(registry, "run1").card.status == "interrupted"
+    assert [open_run(registry, r).status for r in ("run1", "run2")] == ["interrupted", "not started"]

@@ -144,7 +144,8 @@ class RunConfig(BaseModel):
         return data
 
 
-RunStatus = Literal["running", "completed", "interrupted", "failed"]
+# `created`: the folder exists and nothing has trained yet (a study's prepared cell); training sets `running`.
+RunStatus = Literal["created", "running", "completed", "interrupted", "failed"]
 
 
 class RunCard(BaseModel):

@@ -122,8 +122,12 @@ class Run:
 
     @property
     def status(self) -> str:
-        """The card's status; for a run marked running that no process holds: `not started` when it has no
-        checkpoint yet (a study's prepared cell), else `stale` (its trainer is gone: SIGKILL, crash)."""
+        """The card's status, with what the run's lock adds: a created run is `queued` while a process holds
+        it (a study on Ray waiting for a free worker) and `not started` otherwise; a run marked running that
+        no process holds is `stale` (its trainer is gone: SIGKILL, crash), or `not started` when it has no
+        checkpoint (cards of mikt 0.2 and older marked prepared cells running)."""
+        if self.card.status == "created":
+            return "queued" if lock_owner(self) is not None else "not started"
         if self.card.status == "running" and lock_owner(self) is None:
             return "stale" if self.checkpoint_path.exists() else "not started"
         return self.card.status
@@ -213,7 +217,7 @@ def create_run(registry: Path, **fields: Any) -> Run:
         except FileExistsError:
             continue
     stamp = now()
-    card = RunCard(run_id=path.name, status="running", created=stamp, updated=stamp, **fields)
+    card = RunCard(run_id=path.name, status="created", created=stamp, updated=stamp, **fields)
     run = Run(path, card)
     run.save_card()
     return run

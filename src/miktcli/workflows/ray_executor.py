@@ -254,7 +254,9 @@ def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: i
         for ref in list(in_flight):
             ray.cancel(ref, force=True)
         for run_id in locks:
-            open_run(registry, run_id).save_card(status="interrupted")
+            run = open_run(registry, run_id)
+            if run.card.status != "created":  # a cell no chunk came back for stays as it was: not started
+                run.save_card(status="interrupted")
         raise
     finally:
         for lock in locks.values():
