@@ -312,9 +312,20 @@ def test_a_resumed_run_ends_exactly_like_an_uninterrupted_one(registry, ctrl_c_a
 
 def test_a_prepared_run_that_never_trained_is_not_started_rather_than_stale(registry):
     from miktcli.registry.runs import open_run
+    from miktcli.workflows.grid import Grid, cell_key
+    from miktcli.workflows.study import Study
     from miktcli.workflows.transfer import start_transfer
 
     run = start_transfer(registry, to="centipede-four", method="vpg", teacher_refs=[], steps=2048, seed=0,
                          command="test")
     assert open_run(registry, run.id).status == "not started"
     assert "not started" in mikt("runs").output
+    # a cell prepared by mikt 0.2 (marked running) becomes `created` when its study starts again
+    open_run(registry, run.id).save_card(status="running")
+    assert open_run(registry, run.id).status == "not started"
+    grid = Grid.model_validate({"name": "g", "steps": 2048, "seeds": [0], "methods": [{"name": "vpg", "method": "vpg"}],
+                                "pairs": [{"from": ["x"], "to": "centipede-four"}]})
+    study = Study(grid, registry.parent / "out", registry)
+    study._remember(cell_key(*study.plan()[0]), run.id)
+    study.prepare("test")
+    assert open_run(registry, run.id).card.status == "created"

@@ -93,6 +93,8 @@ class Study:
                     compile_loss=self.grid.compile_loss,
                 )
                 self._remember(key, run.id)
+            elif run.status == "not started" and run.card.status == "running":
+                run.save_card(status="created")  # prepared by mikt 0.2 or older, which marked it running
             cells.append((key, run))
         return cells
 
