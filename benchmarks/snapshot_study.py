@@ -1,10 +1,15 @@
 """Copies the card and metrics of every finished cell of a study into its results folder, for committing.
 
-    python benchmarks/snapshot_study.py benchmarks/results/paper-2m/paper-2m [--registry registry]
+    python benchmarks/snapshot_study.py benchmarks/results/paper-2m/paper-2m [--registry registry] [--restore]
 
 The registry's run folders also hold checkpoints and students (large, and not needed to read the results);
 `RESULTS/runs/RUN/` gets `run.json` and `metrics.jsonl` of each completed run named in `RESULTS/state.json`.
 Unfinished cells are listed, not copied.
+
+`--restore` goes the other way, for a fresh clone or another machine: every snapshot whose run folder the
+registry lacks is copied back, so the study skips those finished cells (instead of training them again) and
+its report includes them. Run it before the study starts there: new cells then get run ids after the
+restored ones. A restored run has no checkpoint or student file, so `mikt eval` says it cannot evaluate it.
 """
 
 from __future__ import annotations
@@ -21,8 +26,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("results", type=Path)
     parser.add_argument("--registry", type=Path, default=ROOT / "registry")
+    parser.add_argument("--restore", action="store_true", help="copy snapshots back into a registry lacking them")
     args = parser.parse_args()
     state = json.loads((args.results / "state.json").read_text())
+    if args.restore:
+        restore(args.results, args.registry, state)
+        return
     for cell, run_id in sorted(state.items(), key=lambda kv: int(kv[1][3:])):
         source = args.registry / "runs" / run_id
         card = json.loads((source / "run.json").read_text())
@@ -34,6 +43,20 @@ def main() -> None:
         for name in ("run.json", "metrics.jsonl"):
             shutil.copy(source / name, target / name)
         print(f"{run_id}  {cell}: completed, copied")
+
+
+def restore(results: Path, registry: Path, state: dict[str, str]) -> None:
+    for cell, run_id in sorted(state.items(), key=lambda kv: int(kv[1][3:])):
+        snapshot, target = results / "runs" / run_id, registry / "runs" / run_id
+        if not (snapshot / "run.json").is_file():
+            continue
+        if target.exists():
+            print(f"{run_id}  {cell}: already in {registry}, left as it is")
+            continue
+        target.mkdir(parents=True)
+        for name in ("metrics.jsonl", "run.json"):  # the card last: it never describes missing metrics
+            shutil.copy(snapshot / name, target / name)
+        print(f"{run_id}  {cell}: restored")
 
 
 if __name__ == "__main__":

@@ -3,6 +3,8 @@
 import importlib.util
 import json
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 from test_study import fake_run
@@ -54,3 +56,26 @@ def test_similarity_report_puts_every_teacher_of_the_target_on_the_same_seeds(re
     assert rows["mikt ← far"] == "| mikt ← far | 1 | 1 | 1 | 1 | 5 | 0.50 / 0.25 |"
     assert rows["vpg"].startswith("| vpg | 1 | 0 | 1 |") and rows["vpg"].endswith("| 10 | — |")
     assert (path.parent / "similarity-curves.png").exists() and (path.parent / "similarity-weights.png").exists()
+
+
+def test_snapshots_restore_into_a_fresh_registry_so_the_study_skips_finished_cells(registry, tmp_path):
+    from miktcli.workflows.grid import cell_key, load_grid
+    from miktcli.workflows.study import Study
+
+    grid_file = tmp_path / "g.toml"
+    grid_file.write_text('name = "g"\nsteps = 6144\nseeds = [0, 1]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
+                         '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+    grid, out = load_grid(grid_file), tmp_path / "out"
+    study = Study(grid, out, registry)
+    finished = fake_run(registry, "hopper", "vpg", 0, [1, 2, 3], 5)
+    study._remember(cell_key(*study.plan()[0]), finished)
+    script = [sys.executable, str(BENCHMARKS / "snapshot_study.py"), str(out), "--registry", str(registry)]
+    subprocess.run(script, check=True, capture_output=True)
+    assert (out / "runs" / finished / "metrics.jsonl").exists()
+
+    shutil.rmtree(registry)  # a fresh clone: the committed results, no run folders
+    subprocess.run([*script, "--restore"], check=True, capture_output=True)
+    cells = dict(Study(grid, out, registry).prepare("test"))
+    assert cells[cell_key(*study.plan()[0])].id == finished  # not trained again
+    assert cells[cell_key(*study.plan()[0])].card.status == "completed"
+    assert cells[cell_key(*study.plan()[1])].id == "run2"  # the new cell comes after the restored one
