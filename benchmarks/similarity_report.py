@@ -42,6 +42,10 @@ def snapshot_runs(results: Path):
     return run_of
 
 
+def teachers_of(pair: PairSpec) -> str:
+    return "+".join(t.split("@")[0] for t in pair.teachers)
+
+
 def method_named(grid: Grid, name: str) -> MethodSpec:
     for method in grid.methods:
         if method.name == name:
@@ -59,11 +63,14 @@ def similarity_report(root: Path, main_name: str, similarity_name: str, method_n
     seeds = similar.seeds
     main_runs, similar_runs = snapshot_runs(root / main_name), snapshot_runs(root / similarity_name)
     groups: list[tuple[str, Grid, object, PairSpec, MethodSpec]] = [
-        *((f"{method_name} ← {p.name.split(' → ')[0]}", main, main_runs, p, method_named(main, method_name))
+        *((f"{method_name} ← {teachers_of(p)}", main, main_runs, p, method_named(main, method_name))
           for p in main.pairs if p.to == target),
-        *((f"{method_name} ← {p.name.split(' → ')[0]}", similar, similar_runs, p, method_named(similar, method_name))
+        *((f"{method_name} ← {teachers_of(p)}", similar, similar_runs, p, method_named(similar, method_name))
           for p in similar.pairs),
     ]
+    labels = [label for label, *_ in groups]
+    if len(set(labels)) != len(labels):
+        raise SystemExit(f"the same teachers of {target} are in both grids: {sorted(labels)}")
     baseline_pair = next((p for p in main.pairs if p.to == target), None)
     if baseline_pair is not None:
         groups.append((main.baseline, main, main_runs, baseline_pair, method_named(main, main.baseline)))
@@ -92,10 +99,11 @@ def similarity_report(root: Path, main_name: str, similarity_name: str, method_n
         p = "—"
         if all(m.get("p_pi_0") is not None for m in mixing):
             p = (f"{np.mean([m['p_pi_0'] for m in mixing]):.2f} / {np.mean([m['p_vf_0'] for m in mixing]):.2f}")
-            rows = [r.read_metrics() for r in runs]
-            n = min(len(r) for r in rows)
-            weights[f"{label} (π)"] = [(rows[0][i]["steps"], float(np.mean([r[i]["p_pi_0"] for r in rows])))
-                                      for i in range(n)]
+            # averaged at the steps every run logged (a damaged metrics line drops a step, never shifts one)
+            by_step = [{row["steps"]: row.get("p_pi_0") for row in r.read_metrics()} for r in runs]
+            common = sorted(set.intersection(*(set(b) for b in by_step)))
+            weights[f"{label} (π)"] = [(step, float(np.mean([b[step] for b in by_step]))) for step in common
+                                      if all(b[step] is not None for b in by_step)]
         lines.append(f"| {label} | {len(runs)} | " + " | ".join(cells)
                      + f" | {mean_pm_std(np.nanmean(curves, axis=1))} | {mean_pm_std(evals)} | {p} |")
         series[label] = list(zip(steps.tolist(), mean.tolist(), strict=True))

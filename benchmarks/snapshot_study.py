@@ -8,8 +8,9 @@ Unfinished cells are listed, not copied.
 
 `--restore` goes the other way, for a fresh clone or another machine: every snapshot whose run folder the
 registry lacks is copied back, so the study skips those finished cells (instead of training them again) and
-its report includes them. Run it before the study starts there: new cells then get run ids after the
-restored ones. A restored run has no checkpoint or student file, so `mikt eval` says it cannot evaluate it.
+its report includes them; cells without a snapshot leave state.json and start afresh under new ids. Run it
+before the study starts there. It refuses when the registry holds other runs under the snapshots' ids. A
+restored run has no checkpoint or student file, so `mikt eval` says it cannot evaluate it.
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ import argparse
 import json
 import shutil
 from pathlib import Path
+
+from miktcli.registry.files import write_text_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,18 +48,35 @@ def main() -> None:
         print(f"{run_id}  {cell}: completed, copied")
 
 
+def same_run(a: dict, b: dict) -> bool:
+    return all(a.get(k) == b.get(k) for k in ("run_id", "created", "env", "method", "seed"))
+
+
 def restore(results: Path, registry: Path, state: dict[str, str]) -> None:
+    """Snapshots back into the registry; cells without one leave state.json (they start afresh, under new
+    run ids, instead of adopting whatever run later takes their old id)."""
+    kept, conflicts = {}, []
     for cell, run_id in sorted(state.items(), key=lambda kv: int(kv[1][3:])):
         snapshot, target = results / "runs" / run_id, registry / "runs" / run_id
         if not (snapshot / "run.json").is_file():
+            print(f"{run_id}  {cell}: no snapshot (unfinished): starts afresh")
             continue
-        if target.exists():
-            print(f"{run_id}  {cell}: already in {registry}, left as it is")
-            continue
-        target.mkdir(parents=True)
-        for name in ("metrics.jsonl", "run.json"):  # the card last: it never describes missing metrics
-            shutil.copy(snapshot / name, target / name)
-        print(f"{run_id}  {cell}: restored")
+        card = json.loads((snapshot / "run.json").read_text())
+        if (target / "run.json").is_file():
+            if not same_run(card, json.loads((target / "run.json").read_text())):
+                conflicts.append(f"{run_id} ({cell})")
+                continue
+            print(f"{run_id}  {cell}: already in {registry}")
+        else:
+            target.mkdir(parents=True, exist_ok=True)
+            for name in ("metrics.jsonl", "run.json"):  # the card last: it never describes missing metrics
+                shutil.copy(snapshot / name, target / name)
+            print(f"{run_id}  {cell}: restored")
+        kept[cell] = run_id
+    if conflicts:
+        raise SystemExit(f"error: {registry} already has other runs under these ids: {', '.join(conflicts)}; "
+                         "restore into an empty registry (--registry) or move those runs away")
+    write_text_atomic(results / "state.json", json.dumps(kept, indent=2, ensure_ascii=False))
 
 
 if __name__ == "__main__":

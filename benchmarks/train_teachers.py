@@ -20,6 +20,7 @@ from pathlib import Path
 import torch
 
 from miktcli.registry.runs import Run, list_runs
+from miktcli.registry.teachers import load_teacher, versions
 from miktcli.workflows.session import Phase, run_to_end
 from miktcli.workflows.teacher import start_teacher, train_teacher
 
@@ -42,6 +43,16 @@ def find_run(env: str, steps: int, seed: int) -> Run | None:
     return matches[-1] if matches else None
 
 
+def published(env: str, steps: int, seed: int) -> str | None:
+    """A committed teacher of `env` trained like this job (raw actions, these steps and seed): the job is
+    done even where its run folder is not (a fresh clone holds registry/teachers, not registry/runs)."""
+    for version in reversed(versions(REGISTRY, env)):
+        card = load_teacher(REGISTRY, f"{env}@v{version}").card
+        if (card.steps, card.seed, card.clip_actions_for_env) == (steps, seed, False):
+            return card.ref
+    return None
+
+
 def report(label: str):
     def show(event) -> None:
         if isinstance(event, Phase):
@@ -58,6 +69,9 @@ def main(selected: list[str]) -> None:
         if selected and env not in selected:
             continue
         run = find_run(env, steps, seed)
+        if run is None and (ref := published(env, steps, seed)):
+            print(f"{env}: done ({ref}, published; its run folder is not in this registry)", flush=True)
+            continue
         if run is not None and run.card.status == "completed":
             print(f"{env}: done in {run.id} ({run.card.result.get('teacher')})", flush=True)
         else:

@@ -63,19 +63,41 @@ def test_snapshots_restore_into_a_fresh_registry_so_the_study_skips_finished_cel
     from miktcli.workflows.study import Study
 
     grid_file = tmp_path / "g.toml"
-    grid_file.write_text('name = "g"\nsteps = 6144\nseeds = [0, 1]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
+    grid_file.write_text('name = "g"\nsteps = 6144\nseeds = [0, 1, 2]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
                          '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
     grid, out = load_grid(grid_file), tmp_path / "out"
     study = Study(grid, out, registry)
-    finished = fake_run(registry, "hopper", "vpg", 0, [1, 2, 3], 5)
-    study._remember(cell_key(*study.plan()[0]), finished)
+    key0, key1, key2 = (cell_key(*cell) for cell in study.plan())
+    unfinished = study.prepare("test")[1][1].id  # run1-run3 prepared; seed 1's and seed 2's never train
+    finished = fake_run(registry, "hopper", "vpg", 0, [1, 2, 3], 5)  # run4, seed 0's
+    study._remember(key0, finished)
     script = [sys.executable, str(BENCHMARKS / "snapshot_study.py"), str(out), "--registry", str(registry)]
     subprocess.run(script, check=True, capture_output=True)
-    assert (out / "runs" / finished / "metrics.jsonl").exists()
+    assert (out / "runs" / finished / "metrics.jsonl").exists() and not (out / "runs" / unfinished).exists()
 
-    shutil.rmtree(registry)  # a fresh clone: the committed results, no run folders
+    saved = registry.rename(tmp_path / "old-registry")  # a fresh clone: the committed results, no run folders
     subprocess.run([*script, "--restore"], check=True, capture_output=True)
+    assert json.loads((out / "state.json").read_text()) == {key0: finished}  # unfinished cells start afresh
     cells = dict(Study(grid, out, registry).prepare("test"))
-    assert cells[cell_key(*study.plan()[0])].id == finished  # not trained again
-    assert cells[cell_key(*study.plan()[0])].card.status == "completed"
-    assert cells[cell_key(*study.plan()[1])].id == "run2"  # the new cell comes after the restored one
+    assert cells[key0].id == finished and cells[key0].card.status == "completed"  # not trained again
+    assert cells[key1].id == "run5" and cells[key2].id == "run6"  # new ids after the restored run4
+
+    # a registry holding other runs under the snapshot's ids: refused, nothing changed
+    other = tmp_path / "other"
+    shutil.copytree(saved, other)
+    shutil.rmtree(other / "runs" / finished)
+    fake_run(other, "hopper", "vpg", 2, [0], 0)  # another run, same id as the snapshot's
+    state_before = (out / "state.json").read_text()
+    r = subprocess.run([sys.executable, str(BENCHMARKS / "snapshot_study.py"), str(out), "--registry", str(other),
+                        "--restore"], capture_output=True, text=True)
+    assert r.returncode == 1 and "already has other runs under these ids: run4" in r.stderr
+    assert (out / "state.json").read_text() == state_before
+
+
+def test_every_committed_grid_loads():
+    from miktcli.workflows.grid import load_grid
+
+    grids = sorted((BENCHMARKS / "grids").glob("*.toml"))
+    assert len(grids) >= 9
+    for path in grids:
+        load_grid(path)

@@ -173,7 +173,24 @@ def test_cards_from_before_the_code_history_say_it_was_not_recorded(registry):
     path.write_text(json.dumps(old))
     card = open_run(registry, "run1").card
     assert card.code_history == []
-    assert describe_code_history(card.code_history, "f00d123") == "not recorded (run created with f00d123)"
+    assert f"not recorded (run created with {card.code_version})" in mikt("inspect", "run1").stdout
+    assert describe_code_history([], "f00d123", trained=False) == "not trained yet"
+
+
+def test_a_segment_that_trained_nothing_is_replaced_not_followed(monkeypatch):
+    from miktcli.registry.cards import CodeSegment, now
+    from miktcli.workflows import session
+
+    def segment(step, commit):
+        return CodeSegment(from_step=step, code_version=commit, packages={}, started=now())
+
+    monkeypatch.setattr(session, "package_versions", lambda: {})
+    monkeypatch.setattr(session, "code_version", lambda: "c")
+    history = [segment(0, "a"), segment(4096, "b")]  # b stopped before its first checkpoint
+    assert [(s.from_step, s.code_version) for s in session.continued_code_history(history, 4096)] == [
+        (0, "a"), (4096, "c")]
+    assert [(s.from_step, s.code_version) for s in session.continued_code_history(history, 6144)] == [
+        (0, "a"), (4096, "b"), (6144, "c")]
 
 
 def test_tampered_teacher_is_refused_by_transfer(registry):

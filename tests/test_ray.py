@@ -135,14 +135,19 @@ def test_sigterm_stops_a_ray_study_like_ctrl_c(tmp_path):
                              "--workers", "1", "--chunk-iterations", "1"],
                             env={**os.environ, "MIKT_REGISTRY": str(registry)},
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and proc.poll() is None:
-        if (registry / "runs" / "run1" / "run.json").exists() and open_run(registry, "run1").card.steps_done:
-            break  # the first chunk of run1 came back
-        time.sleep(0.2)
-    assert open_run(registry, "run2").status == "queued"  # held by the study, waiting for the worker
-    proc.send_signal(signal.SIGTERM)
-    _, stderr = proc.communicate(timeout=120)
+    try:
+        deadline = time.monotonic() + 120
+        while not ((registry / "runs" / "run1" / "run.json").exists()
+                   and open_run(registry, "run1").card.steps_done):  # until the first chunk of run1 came back
+            assert proc.poll() is None and time.monotonic() < deadline, "the study ended or never trained"
+            time.sleep(0.2)
+        assert open_run(registry, "run2").status == "queued"  # held by the study, waiting for the worker
+        proc.send_signal(signal.SIGTERM)
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:  # never leave a 2M-step study behind
+            proc.kill()
+            proc.communicate()
     assert proc.returncode == 1, stderr
     assert "interrupted; every cell keeps its last handed-back checkpoint" in stderr
     assert [open_run(registry, r).status for r in ("run1", "run2")] == ["interrupted", "not started"]

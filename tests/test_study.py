@@ -123,3 +123,38 @@ def test_unknown_teacher_is_found_before_any_cell_trains(registry, tmp_path):
     r = runner.invoke(app, ["study", str(grid), "--out", str(tmp_path / "o")])
     assert r.exit_code == 1 and "unknown teacher 'ghost'" in r.output
     assert not (registry / "runs").exists()
+
+
+def test_a_cell_whose_run_id_now_names_another_run_is_an_error_not_a_result(registry, tmp_path):
+    """state.json outliving its runs (a registry restored or reset) must not credit a cell with another run."""
+    from miktcli.workflows.grid import cell_key, load_grid
+    from miktcli.workflows.study import Study
+
+    grid_file = tmp_path / "g.toml"
+    grid_file.write_text('name = "g"\nsteps = 6144\nseeds = [0]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
+                         '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+    study = Study(load_grid(grid_file), tmp_path / "out", registry)
+    other = fake_run(registry, "ant", "vpg", 0, [1, 2, 3], 5)  # a finished run of another cell
+    study._remember(cell_key(*study.plan()[0]), other)
+    for args in (["--report-only"], []):
+        r = runner.invoke(app, ["study", str(grid_file), "--out", str(tmp_path / "out"), *args])
+        assert r.exit_code == 1, r.output
+        assert f"names {other}, but {other} is a transfer run of vpg on ant, seed 0" in r.output
+    assert not (registry / "runs" / "run2").exists()  # nothing trained or created meanwhile
+
+
+def test_a_study_start_turns_never_trained_running_or_interrupted_cells_into_created(registry, tmp_path):
+    from miktcli.registry.runs import open_run
+    from miktcli.workflows.grid import load_grid
+    from miktcli.workflows.study import Study
+
+    grid_file = tmp_path / "g.toml"
+    grid_file.write_text('name = "g"\nsteps = 6144\nseeds = [0, 1, 2]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
+                         '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+    study = Study(load_grid(grid_file), tmp_path / "out", registry)
+    runs = [run for _, run in study.prepare("test")]
+    runs[0].save_card(status="running")  # prepared before the `created` status
+    runs[1].save_card(status="interrupted")  # marked by an older Ray driver that held it
+    runs[2].save_card(status="interrupted", steps_done=2048)  # really trained: left alone
+    study.prepare("test")
+    assert [open_run(registry, r.id).card.status for r in runs] == ["created", "created", "interrupted"]

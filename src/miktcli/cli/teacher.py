@@ -152,9 +152,11 @@ def render_card(data: dict) -> None:
     table = Table(show_header=False, box=None)
     for key, value in data.items():
         if key == "code_history":
-            if not value:  # imported teachers, and cards from before the history was recorded
+            if data.get("imported_from"):  # trained elsewhere: its import record says where
                 continue
-            value = describe_code_history([CodeSegment.model_validate(s) for s in value], data["code_version"])
+            trained = data.get("steps_done", data.get("steps", 0)) > 0  # run cards / teacher cards
+            value = describe_code_history([CodeSegment.model_validate(s) for s in value], data["code_version"],
+                                          trained=trained)
         elif isinstance(value, dict):
             value = ", ".join(f"{k}={v}" for k, v in value.items())
         table.add_row(key, str(value))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as dt
+import functools
 import importlib.metadata
 import subprocess
 from pathlib import Path
@@ -30,8 +31,12 @@ def package_versions() -> dict[str, str]:
     return versions
 
 
+@functools.cache
 def code_version() -> str:
-    """The git commit of the checkout that runs (with '+dirty' for local edits), else the package version."""
+    """The git commit of the checkout that runs (with '+dirty' for local edits), else the package version.
+
+    Read once per process: the code a process runs is what it imported at the start, whatever the checkout
+    turns into while it trains."""
     root = Path(__file__).resolve().parents[2]
     try:
         commit = subprocess.run(
@@ -61,9 +66,11 @@ class CodeSegment(BaseModel):
     started: dt.datetime
 
 
-def describe_code_history(history: list[CodeSegment], created_with: str) -> str:
+def describe_code_history(history: list[CodeSegment], created_with: str, trained: bool = True) -> str:
     """One line: which commit trained which steps. Cards written before mikt recorded the history (or steps
-    trained before its first segment) say so rather than guess."""
+    trained before its first segment) say so rather than guess; `trained` False: nothing has trained yet."""
+    if not history and not trained:
+        return "not trained yet"
     parts = [] if history and history[0].from_step == 0 else [f"not recorded (run created with {created_with})"]
     parts += [f"{s.code_version} from step {s.from_step:,}" for s in history]
     return "; ".join(parts)

@@ -125,7 +125,7 @@ class Run:
         """The card's status, with what the run's lock adds: a created run is `queued` while a process holds
         it (a study on Ray waiting for a free worker) and `not started` otherwise; a run marked running that
         no process holds is `stale` (its trainer is gone: SIGKILL, crash), or `not started` when it has no
-        checkpoint (cards of mikt 0.2 and older marked prepared cells running)."""
+        checkpoint (before the `created` status, prepared cells were marked running)."""
         if self.card.status == "created":
             return "queued" if lock_owner(self) is not None else "not started"
         if self.card.status == "running" and lock_owner(self) is None:

@@ -145,10 +145,11 @@ def _update_progress(progress: CellProgress, files: dict[str, bytes]) -> str:
 
 def _restore_sigterm(handler: Any) -> None:
     """ray.init installs its own SIGTERM handler (sys.exit; a local node's also kills Ray's processes), which
-    bypassed the clean stop: cells were left `running` (then `stale`) and no message said how to resume. The
-    caller's handler goes back (the CLI's raises KeyboardInterrupt, like Ctrl-C), so SIGTERM cancels the tasks,
-    marks the cells interrupted and shuts Ray down in the executor's own `finally`."""
-    if handler is not None and threading.current_thread() is threading.main_thread():
+    bypassed the clean stop: cells were left `running` (then `stale`) and no message said how to resume. A
+    Python handler the caller had (the CLI's raises KeyboardInterrupt, like Ctrl-C) goes back, so SIGTERM
+    cancels the tasks, marks the cells interrupted and, when this process started Ray, shuts it down in the
+    executor's own `finally`. With no Python handler before, Ray's stays: it is what cleans up Ray's processes."""
+    if callable(handler) and threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, handler)
 
 

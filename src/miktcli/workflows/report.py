@@ -162,7 +162,8 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
               "|---|---|---|---|---|"]
     for key, run_id in cell_runs.items():
         run = run_of(key)
-        code = describe_code_history(run.card.code_history, run.card.code_version) if run is not None else "—"
+        code = ("—" if run is None else describe_code_history(run.card.code_history, run.card.code_version,
+                                                               trained=run.card.steps_done > 0))
         lines.append(f"| {' | '.join(key.split('|'))} | {run_id} | {code} |")
     path = out_dir / "results.md"
     write_text_atomic(path, "\n".join(lines) + "\n")

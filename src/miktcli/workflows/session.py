@@ -160,10 +160,13 @@ class Job:
 
 def continued_code_history(history: list[CodeSegment], step: int) -> list[CodeSegment]:
     """The history with this process's code training from `step` on: a new segment only when the code or the
-    packages differ from the last segment's (a study's chunks and plain resumes add nothing)."""
+    packages differ from the last segment's (a study's chunks and plain resumes add nothing). A last segment
+    that trained nothing (stopped before its first checkpoint) is replaced, not followed."""
     current = CodeSegment(from_step=step, code_version=code_version(), packages=package_versions(), started=now())
     if history and (history[-1].code_version, history[-1].packages) == (current.code_version, current.packages):
         return history
+    if history and history[-1].from_step == step:
+        history = history[:-1]
     return [*history, current]
 
 

@@ -7,6 +7,7 @@ skips finished cells when started again. `report` aggregates whatever has finish
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -14,11 +15,28 @@ from typing import Any
 
 from miktcli.errors import MiktError
 from miktcli.registry.files import write_text_atomic
-from miktcli.registry.runs import Run, open_run
+from miktcli.registry.runs import Run, lock_owner, open_run, runs_dir
 from miktcli.registry.teachers import resolve
 from miktcli.workflows.grid import Grid, MethodSpec, PairSpec, cell_key, legacy_cell_key
 from miktcli.workflows.report import write_report
+from miktcli.workflows.session import whole_rollouts
 from miktcli.workflows.transfer import start_transfer
+
+
+def cell_mismatch(run: Run, pair: PairSpec, method: MethodSpec, seed: int, steps: int) -> str | None:
+    """Why `run` cannot be the run of this cell (what it is instead), or None when it can be."""
+    card = run.card
+    want_teachers = pair.teachers if method.uses_teachers else []
+    have_teachers = [f"{t.name}@v{t.version}" for t in card.teachers]
+    same_teachers = len(want_teachers) == len(have_teachers) and all(
+        have == want or (("@" not in want or want.endswith("@latest")) and have.split("@")[0] == want.split("@")[0])
+        for have, want in zip(have_teachers, want_teachers, strict=False))
+    if (card.kind, card.env, card.method, card.seed) != ("transfer", pair.to, method.method, seed) or not same_teachers:
+        return (f"is a {card.kind} run of {card.method} on {card.env}, seed {card.seed}, teachers "
+                f"{', '.join(have_teachers) or 'none'}")
+    if card.total_steps != whole_rollouts(steps, card.config.ppo.batch_size):
+        return f"trains {card.total_steps:,} steps, the grid {steps:,}"
+    return None
 
 
 class Study:
@@ -31,6 +49,10 @@ class Study:
             if key != legacy and legacy in self.cells:
                 run_id = self.cells.pop(legacy)
                 self.cells.setdefault(key, run_id)
+
+    @functools.cached_property
+    def _cell_of(self) -> dict[str, tuple[PairSpec, MethodSpec, int]]:
+        return {cell_key(*cell): cell for cell in self.plan()}
 
     def _read_state(self) -> dict[str, str]:
         if not self.state_path.exists():
@@ -69,13 +91,20 @@ class Study:
                     resolve(self.registry, ref)
 
     def run_of(self, key: str) -> Run | None:
+        """The run state.json names for a cell; None when it names none or the registry has no such run (the
+        cell starts afresh). A run that is there but unreadable, or that is not this cell's run, is an error:
+        guessing would train a cell twice or credit it with another run's results."""
         run_id = self.cells.get(key)
-        if run_id is None:
+        if run_id is None or not (runs_dir(self.registry) / run_id / "run.json").is_file():
             return None
-        try:
-            return open_run(self.registry, run_id)
-        except MiktError:
-            return None
+        run = open_run(self.registry, run_id)
+        cell = self._cell_of.get(key)
+        mismatch = cell_mismatch(run, *cell, self.grid.steps) if cell else None
+        if mismatch:
+            raise MiktError(f"{self.state_path}: cell {key} names {run_id}, but {run_id} {mismatch}",
+                            hint="another run took that id (a registry restored without this study's runs?); "
+                                 "remove the cell's entry from state.json to train it afresh")
+        return run
 
     def prepare(self, command: str) -> list[tuple[str, Run]]:
         """Check every teacher, create the run folder of every distinct cell that has none (recorded in
@@ -93,8 +122,11 @@ class Study:
                     compile_loss=self.grid.compile_loss,
                 )
                 self._remember(key, run.id)
-            elif run.status == "not started" and run.card.status == "running":
-                run.save_card(status="created")  # prepared by mikt 0.2 or older, which marked it running
+            elif (run.card.status in ("running", "interrupted") and run.card.steps_done == 0
+                  and not run.checkpoint_path.exists() and lock_owner(run) is None):
+                # never trained, but marked running (prepared before the `created` status) or interrupted
+                # (an older Ray driver marked every cell it held)
+                run.save_card(status="created")
             cells.append((key, run))
         return cells
 
