@@ -35,15 +35,16 @@ def test_bad_grid_file(registry, tmp_path):
     assert r.exit_code == 1 and "field 'seeds'" in r.output
 
 
-def fake_run(registry, env, method, seed, curve, eval_return, mixing=None):
+def fake_run(registry, env, method, seed, curve, eval_return, mixing=None, teachers=()):
     """A completed run with a given return curve (one point per 2048-step iteration)."""
     from miktcli.ppo import PPOConfig
-    from miktcli.registry.cards import RunConfig
+    from miktcli.registry.cards import RunConfig, TeacherRef
     from miktcli.registry.runs import create_run
 
     config = RunConfig(ppo=PPOConfig(), pi_hidden=[64, 64], vf_hidden=[64, 64])
+    refs = [TeacherRef(name=name, version=1, sha256="", obs_dim=1, env="x") for name in teachers]
     run = create_run(registry, kind="transfer", env=env, method=method, seed=seed, total_steps=2048 * len(curve),
-                     config=config, command="test", teachers=[], code_version="test", packages={})
+                     config=config, command="test", teachers=refs, code_version="test", packages={})
     for i, ret in enumerate(curve, start=1):
         run.append_metrics({"iteration": i, "steps": 2048 * i, "return_mean": ret, **(mixing or {})})
     result = {"eval_without_teacher": {"return_mean": eval_return}}
@@ -68,8 +69,8 @@ def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
     assert len(study.distinct_cells()) == 2 * 2 + 2
     mix = {"p_pi_0": 0.9, "p_vf_0": 0.8}
     cells = {
-        ("a", "mikt", 0): fake_run(registry, "hopper", "mikt", 0, [-10, -4, 2], 10, mix),
-        ("a", "mikt", 1): fake_run(registry, "hopper", "mikt", 1, [-6, -2, 6], 20, mix),
+        ("a", "mikt", 0): fake_run(registry, "hopper", "mikt", 0, [-10, -4, 2], 10, mix, teachers=["a"]),
+        ("a", "mikt", 1): fake_run(registry, "hopper", "mikt", 1, [-6, -2, 6], 20, mix, teachers=["a"]),
         ("-", "vpg", 0): fake_run(registry, "hopper", "vpg", 0, [-12, -10, -6], 5),
         ("-", "vpg", 1): fake_run(registry, "hopper", "vpg", 1, [-8, -6, -2], 7),
     }
