@@ -141,6 +141,7 @@ def test_sigterm_stops_a_ray_study_like_ctrl_c(tmp_path):
                    and open_run(registry, "run1").card.steps_done):  # until the first chunk of run1 came back
             assert proc.poll() is None and time.monotonic() < deadline, "the study ended or never trained"
             time.sleep(0.2)
+        assert open_run(registry, "run1").status == "running"  # its next chunk is in flight
         assert open_run(registry, "run2").status == "queued"  # held by the study, waiting for the worker
         proc.send_signal(signal.SIGTERM)
         _, stderr = proc.communicate(timeout=120)

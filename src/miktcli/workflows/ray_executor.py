@@ -195,6 +195,8 @@ def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: i
 
     def submit(run_id: str) -> None:
         run = open_run(registry, run_id)
+        if run.card.status != "running":  # in flight from now on (`mikt runs` in the meantime says so)
+            run.save_card(status="running")
         runs[run_id] = run
         files = _folder_files(run.path)
         ref = task.remote(run_id, files, _teacher_payload(registry, run), chunks[run_id], chunk_iterations,
@@ -256,8 +258,8 @@ def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: i
             ray.cancel(ref, force=True)
         for run_id in locks:
             run = open_run(registry, run_id)
-            if run.card.status != "created":  # a cell no chunk came back for stays as it was: not started
-                run.save_card(status="interrupted")
+            # a cell no chunk of which came back has trained nothing: not started, not interrupted
+            run.save_card(status="interrupted" if run.card.steps_done else "created")
         raise
     finally:
         for lock in locks.values():
