@@ -14,26 +14,31 @@ from pathlib import Path
 from typing import Any
 
 from miktcli.errors import MiktError
+from miktcli.registry.cards import TeacherRef
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.runs import Run, lock_owner, open_run, runs_dir
-from miktcli.registry.teachers import resolve
+from miktcli.registry.teachers import REF_RE, resolve
 from miktcli.workflows.grid import Grid, MethodSpec, PairSpec, cell_key, legacy_cell_key
 from miktcli.workflows.report import write_report
 from miktcli.workflows.session import whole_rollouts
 from miktcli.workflows.transfer import start_transfer
 
 
+def names_teacher(ref: str, teacher: TeacherRef) -> bool:
+    """Whether a grid's teacher reference (`name`, `name@latest`, `name@vN`) can mean this run's teacher."""
+    m = REF_RE.match(ref)
+    return bool(m) and m.group("name") == teacher.name and m.group("version") in (None, "latest",
+                                                                                   f"v{teacher.version}")
+
+
 def cell_mismatch(run: Run, pair: PairSpec, method: MethodSpec, seed: int, steps: int) -> str | None:
     """Why `run` cannot be the run of this cell (what it is instead), or None when it can be."""
     card = run.card
-    want_teachers = pair.teachers if method.uses_teachers else []
-    have_teachers = [f"{t.name}@v{t.version}" for t in card.teachers]
-    same_teachers = len(want_teachers) == len(have_teachers) and all(
-        have == want or (("@" not in want or want.endswith("@latest")) and have.split("@")[0] == want.split("@")[0])
-        for have, want in zip(have_teachers, want_teachers, strict=False))
+    refs = pair.teachers if method.uses_teachers else []
+    same_teachers = len(refs) == len(card.teachers) and all(map(names_teacher, refs, card.teachers))
     if (card.kind, card.env, card.method, card.seed) != ("transfer", pair.to, method.method, seed) or not same_teachers:
-        return (f"is a {card.kind} run of {card.method} on {card.env}, seed {card.seed}, teachers "
-                f"{', '.join(have_teachers) or 'none'}")
+        teachers = ", ".join(f"{t.name}@v{t.version}" for t in card.teachers) or "none"
+        return f"is a {card.kind} run of {card.method} on {card.env}, seed {card.seed}, teachers {teachers}"
     if card.total_steps != whole_rollouts(steps, card.config.ppo.batch_size):
         return f"trains {card.total_steps:,} steps, the grid {steps:,}"
     return None
