@@ -165,3 +165,33 @@ def test_run_cards_written_by_0_1_still_open(registry):
     (registry / "runs" / "run5" / "run.json").write_text(json.dumps(data))
     with pytest.raises(MiktError, match="schema version 7 is newer"):
         open_run(registry, "run5")
+
+
+def test_a_saved_card_carries_this_codes_schema_version(registry, monkeypatch):
+    """A version-1 card that gains version-2 fields is written as version 2, so an older mikt refuses it
+    with a message rather than a validation error about a field it does not know."""
+    import shutil
+    from pathlib import Path
+
+    import miktcli.registry.runs as runs_module
+    from miktcli.registry.cards import RUN_SCHEMA_VERSION
+
+    old = Path(__file__).resolve().parents[1] / "benchmarks/results/four-to-eight/runs/run5/run.json"
+    (registry / "runs" / "run5").mkdir(parents=True)
+    shutil.copy(old, registry / "runs" / "run5" / "run.json")
+    run = runs_module.open_run(registry, "run5")
+    assert run.card.schema_version == 1 < RUN_SCHEMA_VERSION
+    run.save_card(status="created")  # a status that version 1 did not have
+    assert json.loads((registry / "runs" / "run5" / "run.json").read_text())["schema_version"] == RUN_SCHEMA_VERSION
+
+    monkeypatch.setattr(runs_module, "RUN_SCHEMA_VERSION", RUN_SCHEMA_VERSION - 1)  # an older mikt's reader
+    with pytest.raises(MiktError, match=f"schema version {RUN_SCHEMA_VERSION} is newer than this mikt understands"):
+        runs_module.open_run(registry, "run5")
+
+
+def test_a_published_teacher_carries_this_codes_schema_version(registry):
+    from miktcli.registry.cards import TEACHER_SCHEMA_VERSION
+
+    card = publish_teacher(registry, make_card(schema_version=1), GaussianActorCritic(11, 3, [8, 8], [8, 8]))
+    assert card.schema_version == TEACHER_SCHEMA_VERSION
+    assert load_teacher(registry, "tiny").card.schema_version == TEACHER_SCHEMA_VERSION

@@ -13,8 +13,11 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from miktcli.ppo import PPOConfig
 
-TEACHER_SCHEMA_VERSION = 1
-RUN_SCHEMA_VERSION = 1
+# A card is written with the newest version this code knows; a reader refuses a newer one with a message
+# instead of a validation error about a field it has never heard of. Every version reads every older one.
+# Teacher: 2 adds `code_history`. Run: 2 adds the status `created` and `code_history`.
+TEACHER_SCHEMA_VERSION = 2
+RUN_SCHEMA_VERSION = 2
 
 
 def now() -> dt.datetime:

@@ -33,7 +33,7 @@ from miktcli.registry.tensorboard import EVENTS_FILE, append_event, event_record
 
 RUN_RE = re.compile(r"^run(\d+)$")
 RUN_TARGET_RE = re.compile(r"^(run\d+|last)$")  # what eval and inspect accept as a run
-CHECKPOINT_SCHEMA_VERSION = 1
+CHECKPOINT_SCHEMA_VERSION = 2  # 2: the run card it carries may be a version-2 run card
 
 
 class CheckpointCard(BaseModel):
@@ -150,7 +150,8 @@ class Run:
         return self.path / "student.safetensors"
 
     def save_card(self, **updates: Any) -> None:
-        self.card = self.card.model_copy(update={**updates, "updated": now()})
+        # Stamped with this code's version: the card may now hold fields an older card could not.
+        self.card = self.card.model_copy(update={**updates, "updated": now(), "schema_version": RUN_SCHEMA_VERSION})
         write_text_atomic(self.path / "run.json", self.card.model_dump_json(indent=2))
 
     @property
@@ -241,7 +242,8 @@ def open_run(registry: Path, run_id: str) -> Run:
         raise MiktError(f"{card_path}: not valid JSON: {err}") from err
     found = raw.get("schema_version") if isinstance(raw, dict) else None
     if isinstance(found, int) and found > RUN_SCHEMA_VERSION:
-        raise MiktError(f"{card_path}: schema version {raw['schema_version']} is newer than this mikt understands")
+        raise MiktError(f"{card_path}: run card schema version {found} is newer than this mikt understands "
+                        f"({RUN_SCHEMA_VERSION})", hint="upgrade mikt to read it")
     try:
         return Run(path, RunCard.model_validate(raw))
     except ValidationError as err:

@@ -149,7 +149,8 @@ def publish_teacher(registry: Path, card: TeacherCard, policy: GaussianActorCrit
     tensors = {k: v.detach().clone().contiguous() for k, v in policy.state_dict().items()}
     for _ in range(100):  # another process may take the same number first: try the next one
         number = (versions(registry, card.name) or [0])[-1] + 1
-        final = card.model_copy(update={"version": number, "tensors_sha256": tensors_sha256(tensors)})
+        final = card.model_copy(update={"version": number, "tensors_sha256": tensors_sha256(tensors),
+                                        "schema_version": TEACHER_SCHEMA_VERSION})
         path = teachers_dir(registry) / card.name / f"v{number}.safetensors"
         try:
             save_with_card(path, tensors, final, exclusive=True)
