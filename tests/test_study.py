@@ -97,6 +97,16 @@ def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
     assert "![every pair](summary.png)" in table and (tmp_path / "out" / "summary.png").exists()
     assert "| method | n | 2,048 | 6,144 |" in table
     assert "| mikt | 2 | -8 ± 3 | 4 ± 3 |" in table
+    # mikt against vpg over seeds: finals (2, 6) vs (-6, -2); of the 6 splits of the pooled four, {2, 6} and
+    # {-6, -2} differ by 8, so p = 2/6, which is also the floor for 2 against 2
+    assert "| mikt vs vpg | 2 / 2 | final return | +8 | 1.00 | 0.333 | 0.333 |" in table
+    # final evals (10, 20) vs (5, 7): mean difference 9
+    assert "| mikt vs vpg | 2 / 2 | final eval (no teacher) | +9 | 1.00 | 0.333 | 0.333 |" in table
+    compared = json.loads((tmp_path / "out" / "comparisons.json").read_text())
+    assert compared["b → hopper"] == []  # only vpg ran there: nothing to compare
+    assert [(r["a"], r["b"], r["measure"]) for r in compared["a → hopper"]] == [
+        ("mikt", "vpg", "final return"), ("mikt", "vpg", "mean over training"),
+        ("mikt", "vpg", "final eval (no teacher)")]
 
 
 def test_grids_with_duplicate_methods_or_pairs_are_refused(tmp_path):

@@ -1,5 +1,6 @@
-"""The study report: per-pair tables (marks, mean over training, final eval, steps to the baseline),
-summary.json with the same numbers, and learning-curve and student-weight plots."""
+"""The study report: per-pair tables (marks, mean over training, final eval, steps to the baseline), each
+pair's method-against-method comparisons over seeds, summary.json and comparisons.json with the same numbers,
+and learning-curve and student-weight plots."""
 
 from __future__ import annotations
 
@@ -16,9 +17,11 @@ from miktcli.registry.cards import describe_code_history
 from miktcli.registry.files import write_bytes_atomic, write_text_atomic
 from miktcli.registry.runs import Run
 from miktcli.registry.tensorboard import EVENTS_FILE, event_records
+from miktcli.stats import compare
 from miktcli.workflows.grid import Grid, MethodSpec, PairSpec, cell_key
 
 RunOf = Callable[[str], Run | None]  # a cell key → its run, if one was started
+PerSeed = dict[str, dict[str, np.ndarray]]  # method → measure → one value per completed seed
 
 
 def first_reach(steps: np.ndarray, curve: np.ndarray, level: float) -> str:
@@ -65,6 +68,36 @@ def completed_curves(grid: Grid, run_of: RunOf, pair: PairSpec,
     return runs, steps, np.array([[v for _, v in c[:length]] for c in curves])
 
 
+def comparison_table(per_seed: PerSeed) -> tuple[list[str], list[dict[str, Any]]]:
+    """Every method against every later one (grid order), on each per-seed measure: markdown lines and the
+    same rows for comparisons.json. A side with fewer than two values is left out (nothing to test)."""
+    lines: list[str] = []
+    rows: list[dict[str, Any]] = []
+    methods = list(per_seed)
+    for i, a in enumerate(methods):
+        for b in methods[i + 1:]:
+            for measure in per_seed[a]:
+                # A run without a value (no episode finished yet) has nothing to compare; n says how many do.
+                values_a, values_b = (v[np.isfinite(v)] for v in (per_seed[a][measure], per_seed[b][measure]))
+                if len(values_a) < 2 or len(values_b) < 2:
+                    continue
+                c = compare(values_a, values_b)
+                p = f"{c.p_value:.3f}" + ("" if c.exact else " (Monte Carlo)")
+                lines.append(f"| {a} vs {b} | {c.n_a} / {c.n_b} | {measure} | {c.difference:+,.0f} | "
+                             f"{c.p_improvement:.2f} | {p} | {c.smallest_p:.3f} |")
+                rows.append({"a": a, "b": b, "measure": measure, "n_a": c.n_a, "n_b": c.n_b,
+                             "difference": c.difference, "p_improvement": c.p_improvement,
+                             "p_value": c.p_value, "exact": c.exact, "smallest_p": c.smallest_p})
+    if not lines:
+        return [], []
+    header = ["", "### Comparisons over seeds", "",
+              "A − B is the difference of the seed means; P(A > B) the fraction of seed pairs in which A is higher "
+              "(ties half); p the two-sided permutation test of the difference (every split of the pooled seeds), "
+              "which cannot go below the floor its seed counts allow.", "",
+              "| A vs B | n (A / B) | measure | A − B | P(A > B) | p | smallest possible p |",
+              "|---|---|---|---|---|---|---|"]
+    return header + lines, rows
+
 
 def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: RunOf) -> Path:
     """results.md (tables per pair), summary.json and the curve and student-weight plots."""
@@ -80,6 +113,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
              "(0.75 × final when it is positive).",
              ""]
     summary: dict[str, Any] = {}
+    comparisons: dict[str, list[dict[str, Any]]] = {}
     panels = []
     for pair in g.pairs:
         data = {m.name: completed_curves(grid, run_of, pair, m) for m in g.methods}
@@ -97,6 +131,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
                   "final student weights p (π / V)"]
         lines += [f"## {pair.name}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
         series, bands, weight_series = {}, {}, {}
+        per_seed: PerSeed = {}
         summary[pair.name] = {}
         for method in g.methods:
             runs, steps, curves = data[method.name]
@@ -127,6 +162,8 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
                         (rows[0][i]["steps"], float(np.mean([r[i][k] for r in rows]))) for i in range(n)]
             # Area under the curve per step: how much return the whole run collected, jump-start included.
             auc = np.nanmean(curves, axis=1)
+            per_seed[method.name] = {"final return": curves[:, -1],
+                                     "mean over training": auc, "final eval (no teacher)": np.asarray(evals)}
             lines.append(f"| {method.name} | {len(runs)} | " + " | ".join(cells)
                          + f" | {mean_pm_std(auc)} | {mean_pm_std(evals)} | {reach} | {reach_75} | {weights} |")
             series[method.name] = list(zip(steps.tolist(), mean.tolist(), strict=True))
@@ -142,6 +179,8 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
                 "mean_over_training": float(np.mean(auc)), "mean_over_training_std": _json_number(sample_std(auc)),
                 "steps_to_baseline_final": reach, "steps_to_three_quarters_of_baseline_final": reach_75,
             }
+        compared, comparisons[pair.name] = comparison_table(per_seed)
+        lines += compared
         slug = "".join(c if c.isalnum() else "-" for c in pair.name.replace(" → ", "-to-")).strip("-")
         if series:
             panels.append((series, pair.name, bands))
@@ -168,6 +207,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
     path = out_dir / "results.md"
     write_text_atomic(path, "\n".join(lines) + "\n")
     write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False))
+    write_text_atomic(out_dir / "comparisons.json", json.dumps(comparisons, indent=2, ensure_ascii=False))
     return path
 
 
