@@ -100,7 +100,8 @@ def comparison_table(per_seed: PerSeed) -> tuple[list[str], list[dict[str, Any]]
 
 
 def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: RunOf) -> Path:
-    """results.md (tables per pair), summary.json and the curve and student-weight plots."""
+    """results.md (tables and comparisons per pair), summary.json, comparisons.json and the curve and
+    student-weight plots."""
     out_dir.mkdir(parents=True, exist_ok=True)
     g = grid
     lines = [f"# Study `{g.name}`", "",
