@@ -103,6 +103,7 @@ def test_parallel_study_equals_serial_and_survives_interruption_and_a_killed_wor
         del os.environ[FAULT_ENV]
     assert r.exit_code == 0, r.output
     assert marker.exists()  # the worker really died, and the cell was sent again from its last checkpoint
+    assert "study: 0/4 cells completed, 2 training;" in r.output  # the overview line, stderr not a terminal
     assert numbers(tmp_path / "ray") == numbers(serial)
     assert all(study.run_of(key).card.status == "completed" for key, _ in cells)
 

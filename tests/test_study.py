@@ -169,3 +169,18 @@ def test_a_study_start_turns_never_trained_running_or_interrupted_cells_into_cre
     runs[2].save_card(status="interrupted", steps_done=2048)  # really trained: left alone
     study.prepare("test")
     assert [open_run(registry, r.id).card.status for r in runs] == ["created", "created", "interrupted"]
+
+
+def test_the_ray_progress_overview_counts_cells_and_estimates_the_end():
+    from miktcli.cli.study import _overview
+    from miktcli.workflows.ray_executor import CellProgress
+
+    cells = [CellProgress("a", "run1", 100, steps=100, state="completed"),
+             CellProgress("b", "run2", 100, steps=40, steps_per_sec=5.0, state="training"),
+             CellProgress("c", "run3", 100, steps=0, steps_per_sec=5.0, state="training"),
+             CellProgress("d", "run4", 100, steps=0, state="queued"),
+             CellProgress("e", "run5", 100, steps=10, state="failed")]
+    # 3 finished before this driver started + run1; 60 + 100 + 100 steps left at 10 steps/s together
+    assert _overview(cells, finished_before=3) == (
+        "4/8 cells completed, 2 training, 1 failed; 260 steps to go, about 0:00:26 at the current 10 steps/s")
+    assert _overview(cells[:1], finished_before=0) == "1/1 cells completed, 0 training; 0 steps to go"

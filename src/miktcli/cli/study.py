@@ -34,9 +34,24 @@ def _duration(seconds: float | None) -> str:
     return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}"
 
 
-def _progress_table(cells) -> Table:
+def _overview(cells, finished_before: int) -> str:
+    """The whole study in one line: cells done, what is left, and when it ends at the current pace."""
+    done = finished_before + sum(c.state == "completed" for c in cells)
+    training = sum(c.state in ("training", "retrying") for c in cells)
+    failed = sum(c.state == "failed" for c in cells)
+    left = sum(c.total_steps - c.steps for c in cells if c.state not in ("completed", "failed"))
+    # The running cells' summed pace: cells of other methods run at other speeds, so this is an estimate.
+    rate = sum(c.steps_per_sec or 0.0 for c in cells if c.state == "training")
+    line = f"{done}/{finished_before + len(cells)} cells completed, {training} training"
+    line += f", {failed} failed" if failed else ""
+    line += f"; {left:,} steps to go"
+    return line + (f", about {_duration(left / rate)} at the current {rate:,.0f} steps/s" if rate and left else "")
+
+
+def _progress_table(cells, finished_before: int) -> Table:
     table = Table("cell (teachers > target | method | seed)", "run", "state", "steps", "return", "steps/s", "ETA",
-                  title="mikt study on Ray", title_justify="left")
+                  title="mikt study on Ray", title_justify="left", caption=_overview(cells, finished_before),
+                  caption_justify="left")
     for c in cells:
         ret = "—" if c.return_mean is None else f"{c.return_mean:.1f}"
         sps = "—" if c.steps_per_sec is None else f"{c.steps_per_sec:.0f}"
@@ -45,9 +60,11 @@ def _progress_table(cells) -> Table:
 
 
 class _PlainProgress:
-    """One line per cell whose steps moved, at most every 30 s, when stderr is not a terminal."""
+    """One line per cell whose steps moved, then the study's overview, at most every 30 s, when stderr is not
+    a terminal."""
 
-    def __init__(self):
+    def __init__(self, finished_before: int):
+        self.finished_before = finished_before
         self.shown: dict[str, tuple[int, str]] = {}
         self.last = 0.0
 
@@ -55,11 +72,15 @@ class _PlainProgress:
         if time.monotonic() - self.last < 30:
             return
         self.last = time.monotonic()
+        moved = False
         for c in cells:
             if self.shown.get(c.run_id) != (c.steps, c.state):
                 self.shown[c.run_id] = (c.steps, c.state)
+                moved = True
                 err.print(f"{c.key}: {c.run_id} {c.state} {c.steps:,}/{c.total_steps:,} steps"
                           + ("" if c.return_mean is None else f", return {c.return_mean:.1f}"))
+        if moved:
+            err.print(f"study: {_overview(cells, self.finished_before)}")
 
 
 def study(
@@ -106,9 +127,11 @@ def _run_on_ray(st, registry: Path, workers: int | None, address: str | None, ev
 
     require_ray()  # before any run folder is created: a clear error naming the extra
     cells = st.prepare(command_line())
+    finished_before = sum(run.card.status == "completed" for _, run in cells)  # the progress shows the rest
     failed = []
     live = Live(console=err, refresh_per_second=2, transient=False) if err.is_terminal else None
-    show = (lambda cells: live.update(_progress_table(cells))) if live else _PlainProgress()
+    show = (lambda cells: live.update(_progress_table(cells, finished_before))) if live else _PlainProgress(
+        finished_before)
     try:
         if live:
             live.start()
