@@ -78,6 +78,10 @@ def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
     methods = {m.name: m for m in grid.methods}
     for (_source, method, seed), run_id in cells.items():
         study._remember(cell_key(pair_a, methods[method], seed), run_id)
+    from miktcli.registry.runs import open_run
+    unfinished = fake_run(registry, "hopper", "mikt", 0, [-3, -2, -1], 0, teachers=["b"])
+    open_run(registry, unfinished).save_card(status="created", result={})  # prepared, never trained
+    study._remember(cell_key(grid.pairs[1], methods["mikt"], 0), unfinished)
     study.report()
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     mikt, vpg = summary["a → hopper"]["mikt"], summary["a → hopper"]["vpg"]
@@ -102,6 +106,9 @@ def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
     assert "| mikt vs vpg | 2 / 2 | final return | +8 | 1.00 | 0.333 | 0.333 |" in table
     # final evals (10, 20) vs (5, 7): mean difference 9
     assert "| mikt vs vpg | 2 / 2 | final eval (no teacher) | +9 | 1.00 | 0.333 | 0.333 |" in table
+    # the run table: each run's state and final numbers (these fake runs record no final train return)
+    assert f"| a>hopper | mikt | 1 | {cells[('a', 'mikt', 1)]} | completed | — | 20 | — |" in table
+    assert f"| b>hopper | mikt | 0 | {unfinished} | not started, 0/6,144 | — | — | — |" in table
     compared = json.loads((tmp_path / "out" / "comparisons.json").read_text())
     assert compared["b → hopper"] == []  # only vpg ran there: nothing to compare
     assert [(r["a"], r["b"], r["measure"]) for r in compared["a → hopper"]] == [

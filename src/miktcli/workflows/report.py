@@ -98,6 +98,27 @@ def comparison_table(per_seed: PerSeed) -> tuple[list[str], list[dict[str, Any]]
               "|---|---|---|---|---|---|---|"]
     return header + lines, rows
 
+def _eval_cell(result: dict[str, Any], name: str) -> str:
+    ev = result.get(name) or {}
+    if not isinstance(ev.get("return_mean"), int | float):
+        return "—"
+    std = ev.get("return_std")
+    return f"{ev['return_mean']:,.0f}" + (f" ± {std:,.0f}" if isinstance(std, int | float) else "")
+
+
+def run_row(run: Run | None) -> str:
+    """A run's cells of the study's run table: state, final returns, which code trained it."""
+    if run is None:
+        return " | ".join(["missing from the registry", "—", "—", "—", "—"])
+    card = run.card
+    state = "completed" if card.status == "completed" else f"{run.status}, {card.steps_done:,}/{card.total_steps:,}"
+    final = card.result.get("final_train_return") if card.status == "completed" else None
+    final = final if isinstance(final, int | float) else None
+    code = describe_code_history(card.code_history, card.code_version, trained=card.steps_done > 0)
+    return " | ".join([state, "—" if final is None else f"{final:,.0f}",
+                       _eval_cell(card.result, "eval_without_teacher"), _eval_cell(card.result, "eval_with_teacher"),
+                       code])
+
 
 def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: RunOf) -> Path:
     """results.md (tables and comparisons per pair), summary.json, comparisons.json and the curve and
@@ -197,14 +218,14 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
         lines[2:2] = ["![every pair](summary.png)", ""]
     write_tensorboard_tree(grid, out_dir / "tensorboard", run_of)
     lines += ["## Runs", "", "Cells without teachers (`-`) are one run shared by every pair with that target. "
+              "*state* is the run's when this report was written; *final train return* the mean over the last 100 "
+              "training episodes; the evals are deterministic, on fresh seeds (mean ± std over episodes). "
               "`tensorboard --logdir tensorboard` (in this folder) shows every run, grouped pair / method / seed.", "",
-              "| cell (teachers > target) | method | seed | run | trained by (commit from step) |",
-              "|---|---|---|---|---|"]
+              "| cell (teachers > target) | method | seed | run | state | final train return | eval (no teacher) "
+              "| eval (with teacher) | trained by (commit from step) |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for key, run_id in cell_runs.items():
-        run = run_of(key)
-        code = ("—" if run is None else describe_code_history(run.card.code_history, run.card.code_version,
-                                                               trained=run.card.steps_done > 0))
-        lines.append(f"| {' | '.join(key.split('|'))} | {run_id} | {code} |")
+        lines.append(f"| {' | '.join(key.split('|'))} | {run_id} | {run_row(run_of(key))} |")
     path = out_dir / "results.md"
     write_text_atomic(path, "\n".join(lines) + "\n")
     write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False))
