@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from miktcli.outfiles import atomic_output
+
 MARKERS = "●○◆◇▲△■□"
 
 
@@ -77,10 +79,9 @@ def png_panels(panels: list[tuple[Series, str, Bands | None]], path: Path, ylabe
     for ax in list(axes.flat)[len(panels):]:
         ax.set_visible(False)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    tmp.replace(path)
-    return path
+    try:
+        with atomic_output(path, ".png") as tmp:
+            fig.savefig(tmp)
+    finally:
+        plt.close(fig)
+    return Path(path)

@@ -32,7 +32,7 @@ _DESCRIPTIVE_ONLY_0_1 = ("autoreset", "init")  # strings mikt 0.1 recorded; they
 class PPOConfig(BaseModel):
     """The paper's hyper-parameters (Table A + the reference ppo2 defaults) and every decided detail."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # an inf or NaN coefficient poisons every loss
 
     n_steps: int = Field(2048, gt=0, description="env steps per env per rollout")
     num_envs: int = Field(1, gt=0, description="synchronous environments")
@@ -172,6 +172,20 @@ def compiled(loss: Callable[..., Any]) -> Callable[..., Any]:
             raise MiktError(f"compile_loss: torch.compile failed ({reason}); train without --compile") from err
 
     return call
+
+
+def state_misfit(module: torch.nn.Module, state: dict[str, torch.Tensor]) -> str | None:
+    """What keeps `state` from loading into `module` (missing, unexpected or mis-shaped tensors), or None.
+    Checked before loading so that a checkpoint of another model is refused with its reason, not torch's."""
+    wanted = module.state_dict()
+    missing, extra = sorted(wanted.keys() - state.keys()), sorted(state.keys() - wanted.keys())
+    if missing or extra:
+        return f"agent tensors do not fit this run's model: missing {missing[:3]}, unexpected {extra[:3]}"
+    bad = [k for k, v in state.items() if v.shape != wanted[k].shape]
+    if bad:
+        return (f"agent tensor '{bad[0]}' has shape {tuple(state[bad[0]].shape)}, the model needs "
+                f"{tuple(wanted[bad[0]].shape)}")
+    return None
 
 
 class PPOTrainer:
@@ -429,15 +443,9 @@ class PPOTrainer:
             return {k[len(prefix):]: v for k, v in tensors.items() if k.startswith(prefix)}
 
         agent_state, opt_state, scaler_state = part("agent."), part("optim."), part("reward_scaler.")
-        wanted = self.agent.state_dict()
-        missing, extra = sorted(wanted.keys() - agent_state.keys()), sorted(agent_state.keys() - wanted.keys())
-        if missing or extra:
-            raise ValueError(f"agent tensors do not fit this run's model: missing {missing[:3]}, "
-                             f"unexpected {extra[:3]}")
-        bad = [k for k, v in agent_state.items() if v.shape != wanted[k].shape]
-        if bad:
-            raise ValueError(f"agent tensor '{bad[0]}' has shape {tuple(agent_state[bad[0]].shape)}, the model "
-                             f"needs {tuple(wanted[bad[0]].shape)}")
+        problem = state_misfit(self.agent, agent_state)
+        if problem:
+            raise ValueError(problem)
         flat = self.flat.flat
         for key in ("step", "exp_avg", "exp_avg_sq"):
             if key not in opt_state:

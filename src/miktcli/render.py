@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from miktcli.errors import MiktError
+from miktcli.outfiles import atomic_output
 
 
 def render_frame(env) -> np.ndarray:
@@ -27,22 +28,16 @@ def render_frame(env) -> np.ndarray:
 def save_png(frame: np.ndarray, path: Path) -> Path:
     import imageio.v3 as iio
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".part")
-    iio.imwrite(tmp, frame, extension=".png")
-    tmp.replace(path)
-    return path
+    with atomic_output(path, ".png") as tmp:
+        iio.imwrite(tmp, frame, extension=".png")
+    return Path(path)
 
 
 def save_mp4(frames: Iterable[np.ndarray], path: Path, fps: int) -> Path:
     import imageio.v2 as imageio
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".part.mp4")
-    with imageio.get_writer(tmp, fps=fps, codec="libx264", macro_block_size=16) as writer:
+    with atomic_output(path, ".mp4") as tmp, imageio.get_writer(tmp, fps=fps, codec="libx264",
+                                                                 macro_block_size=16) as writer:
         for frame in frames:
             writer.append_data(frame)
-    tmp.replace(path)
-    return path
+    return Path(path)

@@ -42,7 +42,7 @@ class MiktGroup(TyperGroup):
             err.print("Interrupted.")
             raise typer.Exit(130) from None
         except (typer.Exit, typer.Abort, TyperException):
-            raise
+            raise  # usage errors (BadParameter, a TyperException) are printed by typer itself, exit 2
         except Exception as error:  # an unexpected bug: still one line unless debugging
             if debug_enabled():
                 raise

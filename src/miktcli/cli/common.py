@@ -40,3 +40,20 @@ def setup_torch() -> None:
 
     # One process, one thread: measured faster than two threads on these small networks.
     torch.set_num_threads(int(os.environ.get("MIKT_THREADS", "1")))
+
+
+# What a resumed run may still be told: how to report and where its registry is. Everything else (method,
+# teachers, steps, seed, envs, options) is the run card's, so a flag for it would be silently ignored.
+RESUME_COMPATIBLE = {"resume", "as_json", "registry", "eval_episodes"}
+
+
+def refuse_options_with_resume(ctx: typer.Context) -> None:
+    """A usage error (exit 2) naming the first option or argument given on the command line beside --resume."""
+    for param in ctx.command.params:
+        source = ctx.get_parameter_source(param.name)
+        # compared by name: typer ships its own copy of click, whose enum is not click's
+        if param.name in RESUME_COMPATIBLE or source is None or source.name in ("DEFAULT", "DEFAULT_MAP"):
+            continue
+        flag = param.opts[0] if param.param_type_name == "option" else param.name.upper()
+        raise typer.BadParameter("cannot be combined with --resume: a resumed run keeps the settings its card "
+                                 "records", ctx=ctx, param_hint=f"'{flag}'")

@@ -75,12 +75,14 @@ def show(
 def render(
     name: str = typer.Argument(..., help="Environment name."),
     out_path: Path = typer.Option(Path("frame.png"), "--out", "-o", help="PNG file to write."),
-    seed: int = typer.Option(0, help="Reset seed."),
+    seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1, help="Reset seed."),
 ) -> None:
     """Render one offscreen frame after a reset (headless, no GPU needed)."""
     from miktcli.envs import make_env
+    from miktcli.outfiles import prepare_output
     from miktcli.render import render_frame, save_png
 
+    prepare_output(out_path)
     env = make_env(name, render_mode="rgb_array")
     try:
         env.reset(seed=seed)

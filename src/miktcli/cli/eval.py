@@ -24,7 +24,8 @@ Examples:
 def eval_command(
     target: str = typer.Argument(..., help="Teacher NAME or NAME@vN or runN."),
     episodes: int = typer.Option(10, "--episodes", min=1),
-    seed: int = typer.Option(0, "--seed", help="Seed of the first episode; episode i uses seed + i."),
+    seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1,
+                             help="Seed of the first episode; episode i uses seed + i."),
     deterministic: bool = typer.Option(True, "--deterministic/--stochastic", help="Mean action or sampled."),
     with_teacher: bool = typer.Option(False, "--with-teacher", help="Runs: evaluate the student with its teacher."),
     render_offscreen: bool = typer.Option(False, "--render-offscreen", help="Write an MP4 and a PNG poster."),
@@ -33,19 +34,25 @@ def eval_command(
     as_json: JsonOption = False,
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
+    from miktcli.outfiles import prepare_output
     from miktcli.render import save_mp4, save_png
     from miktcli.workflows.evaluate import evaluate_policy, load_policy
 
     setup_torch()
-    policy, env_name, label, clip_actions = load_policy(registry, target, with_teacher)
+    if seed + episodes - 1 > 2**32 - 1:
+        raise typer.BadParameter(f"episode seeds run from {seed} to {seed + episodes - 1}, past 2³²−1",
+                                 param_hint="'--seed'")
     render = render_offscreen or video is not None
+    if render:  # refuse an unwritable path before the episodes, not after them
+        video = prepare_output(video or Path(f"{target.replace('@', '-')}-eval.mp4"))
+        prepare_output(video.with_suffix(".png"))
+    policy, env_name, label, clip_actions = load_policy(registry, target, with_teacher)
     res = evaluate_policy(policy, env_name, episodes, seed, clip_actions, deterministic,
                           capture_episodes=1 if render else 0)
     summary = {"target": target, "policy": label, "env": env_name, "deterministic": deterministic,
                "clip_actions_for_env": clip_actions,
                **res.summary()}
     if render:
-        video = video or Path(f"{target.replace('@', '-')}-eval.mp4")
         frames = res.frames[:video_frames]
         save_mp4(frames, video, fps=res.fps)
         poster = save_png(frames[len(frames) // 2], video.with_suffix(".png"))

@@ -47,10 +47,15 @@ def inspect(
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     from miktcli.errors import MiktError
+    from miktcli.outfiles import prepare_output
     from miktcli.plots import png_plot, text_plot
     from miktcli.registry.runs import open_run
 
     reg = registry
+    if plot and not (coupling or curve):
+        raise typer.BadParameter("--plot writes the chosen view: add --coupling or --curve", param_hint="'--plot'")
+    if plot:
+        prepare_output(plot)
     if not _is_run(target):
         from miktcli.cli.teacher import render_card
         from miktcli.registry.teachers import load_teacher
@@ -74,7 +79,9 @@ def inspect(
     if coupling:
         keys = [k for k in (metrics[0] if metrics else {}) if k.startswith("p_")]
         if not keys:
-            raise MiktError(f"run '{run.id}' ({run.card.method}) has no mixing weights: only mikt runs do")
+            raise MiktError(f"run '{run.id}' has no mixing weights yet: it has no metrics"
+                            if run.card.method == "mikt" and not metrics
+                            else f"run '{run.id}' ({run.card.method}) has no mixing weights: only mikt runs do")
         table = Table("steps", *keys, "teacher")
         for r in _sampled(metrics, rows):
             table.add_row(f"{r['steps']:,}", *("—" if r.get(k) is None else f"{r[k]:.3f}" for k in keys),

@@ -8,6 +8,13 @@ from miktcli.cli.common import DEFAULT_REGISTRY, JsonOption, RegistryOption
 from miktcli.cli.console import err, out, print_json
 
 
+def _result_summary(result: dict) -> str:
+    """The teacher-free eval return, else the final training return; a NaN stored as null reads as '—'."""
+    evaluated = result.get("eval_without_teacher")
+    value = evaluated.get("return_mean") if isinstance(evaluated, dict) else result.get("final_return")
+    return f"{value:.1f}" if isinstance(value, int | float) else "—"
+
+
 def runs(
     as_json: JsonOption = False,
     registry: RegistryOption = DEFAULT_REGISTRY,
@@ -28,13 +35,7 @@ def runs(
     table = Table("run", "kind", "method", "from", "env", "status", "steps", "result", "created")
     for r in found:
         c = r.card
-        res = c.result
-        if "eval_without_teacher" in res:
-            summary = f"{res['eval_without_teacher']['return_mean']:.1f}"
-        elif res.get("final_return") is not None:
-            summary = f"{res['final_return']:.1f}"
-        else:
-            summary = "—"
+        summary = _result_summary(c.result)
         table.add_row(c.run_id, c.kind, c.method, ", ".join(f"{t.name}@v{t.version}" for t in c.teachers) or "—",
                       c.env, r.status, f"{c.steps_done:,}/{c.total_steps:,}", summary, str(c.created)[:19])
     for run_id, problem in damaged:

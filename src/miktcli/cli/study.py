@@ -92,6 +92,9 @@ def study(
     address: str = typer.Option(None, "--address", help="Run cells on an existing Ray cluster: auto or HOST:PORT."),
     chunk_iterations: int = typer.Option(20, "--chunk-iterations", min=1,
                                          help="On Ray: iterations per task before a cell's files come back."),
+    retrain_missing: bool = typer.Option(
+        False, "--retrain-missing", help="Train afresh the cells whose runs state.json names but the registry "
+        "lacks (without it: an error, as the registry is usually the wrong one)."),
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     from miktcli.cli.transfer import train_transfer_run
@@ -107,7 +110,8 @@ def study(
         total = len(st.distinct_cells())
         done = 0
         for key, run, what in st.execute(command_line(),
-                                         lambda r: train_transfer_run(r, registry, grid.eval_episodes)):
+                                         lambda r: train_transfer_run(r, registry, grid.eval_episodes),
+                                         retrain_missing):
             if what in ("done", "finished"):
                 done += 1
                 err.print(f"[{done}/{total}] {key}: {run.id} completed")
@@ -115,18 +119,18 @@ def study(
             else:
                 err.print(f"{key}: {what} {run.id}")
     else:
-        _run_on_ray(st, registry, workers, address, grid.eval_episodes, chunk_iterations)
+        _run_on_ray(st, registry, workers, address, grid.eval_episodes, chunk_iterations, retrain_missing)
     path = st.report()
     err.print(f"wrote {path}")
     print_data(path)
 
 
 def _run_on_ray(st, registry: Path, workers: int | None, address: str | None, eval_episodes: int,
-                chunk_iterations: int) -> None:
+                chunk_iterations: int, retrain_missing: bool) -> None:
     from miktcli.workflows.ray_executor import require_ray, run_cells_on_ray
 
     require_ray()  # before any run folder is created: a clear error naming the extra
-    cells = st.prepare(command_line())
+    cells = st.prepare(command_line(), retrain_missing)
     finished_before = sum(run.card.status == "completed" for _, run in cells)  # the progress shows the rest
     failed = []
     live = Live(console=err, refresh_per_second=2, transient=False) if err.is_terminal else None

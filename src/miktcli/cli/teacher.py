@@ -18,6 +18,7 @@ from miktcli.cli.common import (
     StepsOption,
     command_line,
     note_rounding,
+    refuse_options_with_resume,
     setup_torch,
 )
 from miktcli.cli.console import err, out, print_data, print_json
@@ -34,7 +35,7 @@ app = typer.Typer(
 
 def parse_hidden(text: str) -> list[int]:
     try:
-        sizes = [int(s) for s in text.split(",") if s.strip()]
+        sizes = [int(s) for s in text.split(",")]  # an empty piece ("64,,64") is a typo, not a layer to skip
     except ValueError:
         raise MiktError(f"--hidden '{text}': expected comma-separated integers such as 64,64") from None
     if not sizes or any(s <= 0 for s in sizes):
@@ -44,6 +45,7 @@ def parse_hidden(text: str) -> list[int]:
 
 @app.command("train")
 def train(
+    ctx: typer.Context,
     env: str = typer.Argument(None, help="Environment name (see `mikt envs`).", show_default=False),
     steps: StepsOption = 2_000_000,
     seed: SeedOption = 0,
@@ -61,6 +63,7 @@ def train(
 
     setup_torch()
     if resume:
+        refuse_options_with_resume(ctx)
         run = open_resumable(registry, resume, "teacher")
     else:
         if env is None:

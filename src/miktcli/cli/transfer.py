@@ -16,6 +16,7 @@ from miktcli.cli.common import (
     StepsOption,
     command_line,
     note_rounding,
+    refuse_options_with_resume,
     setup_torch,
 )
 from miktcli.cli.console import err, print_data, print_json
@@ -71,6 +72,7 @@ def with_flag_hint(error: MiktError) -> MiktError:
 
 
 def transfer(
+    ctx: typer.Context,
     teacher: list[str] = typer.Option(None, "--from", help="Teacher NAME or NAME@vN; repeat for several teachers."),
     to: str = typer.Option(None, "--to", help="Target environment."),
     method: str = typer.Option("mikt", "--method", help="mikt | vpg (PPO from scratch) | mlpp."),
@@ -104,6 +106,7 @@ def transfer(
     setup_torch()
     reg = registry
     if resume:
+        refuse_options_with_resume(ctx)
         run = open_resumable(reg, resume, "transfer")
     else:
         if to is None:

@@ -98,6 +98,9 @@ def envspecs_dir() -> Path:
     """Where spec files live: $MIKT_ENVSPECS, else the checkout's envspecs/, else the copy in the wheel."""
     override = os.environ.get("MIKT_ENVSPECS")
     if override:
+        if not Path(override).is_dir():  # else every listing is silently empty
+            raise MiktError(f"MIKT_ENVSPECS={override} is not a folder",
+                            hint="point it at a folder of *.toml specs, or unset it")
         return Path(override)
     here = Path(__file__).resolve()
     checkout = here.parents[3] / "envspecs"

@@ -40,7 +40,7 @@ def lateral_projections(hidden: list[int]) -> nn.ModuleList:
 class MiktConfig(BaseModel):
     """MIKT's own options; recorded in every run card."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # an inf or NaN coefficient poisons every loss
 
     coupling_schedule: Literal["constant", "three-phase"] = Field(
         "three-phase",

@@ -93,6 +93,9 @@ def _assemble(pi_hidden: list[tuple], pi_head: tuple, vf_hidden: list[tuple], vf
         for j, (w, b) in enumerate(hidden):
             state[f"{net}.hidden.{j}.weight"], state[f"{net}.hidden.{j}.bias"] = w, b
         state[f"{net}.head.weight"], state[f"{net}.head.bias"] = head
+    not_finite = [k for k, v in state.items() if not torch.isfinite(v).all()]
+    if not_finite:  # a diverged policy would act NaN: refuse it before it enters the registry
+        raise MiktError(f"{where}: weights for '{not_finite[0]}' hold NaN or infinite values")
     try:
         policy.load_state_dict({k: v.float() if k.startswith(("pi.", "vf.", "log_std")) else v
                                 for k, v in state.items()})

@@ -52,7 +52,15 @@ def runs_dir(registry: Path) -> Path:
     return Path(registry) / "runs"
 
 
+def check_registry(registry: Path) -> None:
+    """A registry is a folder (or not there yet); a file in its place is a mistake worth naming."""
+    if Path(registry).exists() and not Path(registry).is_dir():
+        raise MiktError(f"registry {registry} is a file, not a folder",
+                        hint="point --registry or MIKT_REGISTRY at a folder")
+
+
 def run_ids(registry: Path) -> list[str]:
+    check_registry(registry)
     root = runs_dir(registry)
     if not root.is_dir():
         return []
@@ -199,6 +207,9 @@ class Run:
         if not path.exists():
             raise MiktError(f"run '{self.id}' has no checkpoint yet ({path.name})")
         card = read_card(path, CheckpointCard, CHECKPOINT_SCHEMA_VERSION)
+        if card.run_id != self.id:  # copied in from another run: its weights would not be this run's
+            raise MiktError(f"{path}: the checkpoint belongs to {card.run_id}, not to {self.id}",
+                            hint=f"copy {card.run_id}'s whole folder instead, or resume {card.run_id}")
         tensors = read_tensors(path)
         verify_sha(path, tensors, card.tensors_sha256)
         return card, tensors
@@ -231,13 +242,19 @@ def open_run(registry: Path, run_id: str) -> Run:
         if not ids:
             raise MiktError(f"no runs in {registry} yet")
         run_id = ids[-1]
+    check_registry(registry)
     path = runs_dir(registry) / run_id
     card_path = path / "run.json"
     if not card_path.is_file():
+        if path.is_dir():
+            raise MiktError(f"{card_path} is missing: the folder is not a readable run",
+                            hint="restore run.json from a backup, or remove the folder")
         known = ", ".join(run_ids(registry)) or "(none)"
         raise MiktError(f"unknown run '{run_id}' in {registry}; known: {known}")
     try:
-        raw = json.loads(card_path.read_text())
+        raw = json.loads(card_path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError:
+        raise MiktError(f"{card_path}: not a text file (not UTF-8): damaged") from None
     except json.JSONDecodeError as err:
         raise MiktError(f"{card_path}: not valid JSON: {err}") from err
     found = raw.get("schema_version") if isinstance(raw, dict) else None
@@ -245,9 +262,13 @@ def open_run(registry: Path, run_id: str) -> Run:
         raise MiktError(f"{card_path}: run card schema version {found} is newer than this mikt understands "
                         f"({RUN_SCHEMA_VERSION})", hint="upgrade mikt to read it")
     try:
-        return Run(path, RunCard.model_validate(raw))
+        card = RunCard.model_validate(raw)
     except ValidationError as err:
         raise MiktError(f"{card_path}: invalid run card, {describe_validation_error(err)}") from err
+    if card.run_id != path.name:  # a folder copied or renamed by hand: its checkpoints name the other run
+        raise MiktError(f"{card_path}: the card names {card.run_id} but lives in {path.name}",
+                        hint=f"rename the folder back to {card.run_id}")
+    return Run(path, card)
 
 
 def open_resumable(registry: Path, run_id: str, kind: str) -> Run:

@@ -16,7 +16,7 @@ from miktcli.errors import MiktError
 from miktcli.policies import GaussianActorCritic
 from miktcli.registry.cards import TEACHER_SCHEMA_VERSION, TeacherCard
 from miktcli.registry.files import read_card, read_tensors, save_with_card, tensors_sha256, verify_sha
-from miktcli.registry.runs import Run
+from miktcli.registry.runs import Run, check_registry
 
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
 MAX_NAME_LENGTH = 64
@@ -45,6 +45,7 @@ def check_name(name: str) -> str:
 
 
 def list_names(registry: Path) -> list[str]:
+    check_registry(registry)
     root = teachers_dir(registry)
     return sorted(p.name for p in root.iterdir() if p.is_dir() and versions(registry, p.name)) if root.is_dir() else []
 
@@ -101,6 +102,9 @@ def check_card_against_tensors(path: Path, card: TeacherCard, tensors: dict[str,
         got = shape(key)
         if got != want:
             raise MiktError(f"{path}: card disagrees with tensor '{key}': card implies {want}, tensor is {got}")
+    not_finite = [k for k, v in tensors.items() if v.is_floating_point() and not torch.isfinite(v).all()]
+    if not_finite:  # a diverged or broken policy: every action it gave would be NaN
+        raise MiktError(f"{path}: tensor '{not_finite[0]}' holds NaN or infinite values")
     spec = card.env_spec
     if (spec.get("obs_dim"), spec.get("act_dim")) != (card.obs_dim, card.act_dim):
         raise MiktError(f"{path}: card and tensors say obs {card.obs_dim} / act {card.act_dim} but its env "

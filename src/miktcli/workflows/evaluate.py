@@ -36,7 +36,10 @@ def load_run_policy(registry: Path, run_id: str, with_teacher: bool) -> LoadedPo
         agent = method.with_teachers(agent_from_checkpoint(run, registry))
         label = f"{run.id} student + teacher"
     elif run.student_path.exists():
-        _, agent = load_policy_file(run.student_path)
+        card, agent = load_policy_file(run.student_path)
+        if (card.source_run, card.env) != (run.id, run.card.env):  # another run's or a teacher's file
+            raise MiktError(f"{run.student_path}: the file is {card.ref} on {card.env}, not {run.id}'s student "
+                            f"on {run.card.env} (copied or tampered)")
         label = f"{run.id} student"
     else:  # an interrupted or running run: its last checkpoint, teacher-free
         agent = method.student(agent_from_checkpoint(run, registry))

@@ -29,7 +29,7 @@ class MethodSpec(BaseModel):
 
     name: str
     method: str
-    kl_coef: float | None = None
+    kl_coef: float | None = Field(None, ge=0, allow_inf_nan=False)
     # the method's options; grids write them under the method's name (`mikt = { mi = false }`)
     options: dict[str, Any] = Field(default_factory=dict, alias="mikt")
 
@@ -52,7 +52,7 @@ class Grid(BaseModel):
     steps: int = Field(gt=0)
     seeds: list[int] = Field(min_length=1)
     marks: list[int] = Field(default_factory=list, description="step marks of the results table")
-    eval_episodes: int = 10
+    eval_episodes: int = Field(10, ge=1)
     baseline: str = Field("vpg", description="the method whose final return the others race to")
     compile_loss: bool = Field(False, description="every cell's PPO loss through torch.compile (see --compile)")
     pairs: list[PairSpec] = Field(min_length=1)
@@ -74,12 +74,14 @@ class Grid(BaseModel):
 
 def load_grid(path: Path) -> Grid:
     try:
-        data = tomllib.loads(Path(path).read_text())
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
         return Grid.model_validate(data)
     except FileNotFoundError:
         raise MiktError(f"grid file {path} not found") from None
     except tomllib.TOMLDecodeError as err:
         raise MiktError(f"{path}: not valid TOML: {err}") from err
+    except UnicodeDecodeError:
+        raise MiktError(f"{path}: not valid TOML: not a UTF-8 text file") from None
     except ValidationError as err:
         raise MiktError(f"{path}: {describe_validation_error(err)}") from err
 

@@ -16,7 +16,7 @@ from miktcli.envs import load_spec, make_env
 from miktcli.errors import MiktError
 from miktcli.methods import get_method
 from miktcli.policies import ActorCritic
-from miktcli.ppo import PPOTrainer
+from miktcli.ppo import PPOTrainer, state_misfit
 from miktcli.registry.cards import CodeSegment, RunConfig, TeacherRef, code_version, now, package_versions
 from miktcli.registry.runs import Run, RunLock, create_run
 from miktcli.registry.teachers import load_run_teachers
@@ -184,5 +184,9 @@ def agent_from_checkpoint(run: Run, registry: Path) -> ActorCritic:
     """A run's agent with the weights of its last checkpoint (for evaluation, not for training)."""
     agent = build_agent(run, registry)
     _, tensors = run.load_checkpoint()
-    agent.load_state_dict({k[len("agent."):]: v for k, v in tensors.items() if k.startswith("agent.")})
+    state = {k[len("agent."):]: v for k, v in tensors.items() if k.startswith("agent.")}
+    problem = state_misfit(agent, state)
+    if problem:
+        raise MiktError(f"{run.checkpoint_path}: {problem}")
+    agent.load_state_dict(state)
     return agent

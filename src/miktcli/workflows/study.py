@@ -111,10 +111,25 @@ class Study:
                                  "remove the cell's entry from state.json to train it afresh")
         return run
 
-    def prepare(self, command: str) -> list[tuple[str, Run]]:
+    def missing_runs(self) -> list[tuple[str, str]]:
+        """(cell, run id) for each cell whose state.json entry names a run this registry does not have."""
+        named = ((cell_key(*cell), self.cells.get(cell_key(*cell))) for cell in self.distinct_cells())
+        return [(key, run_id) for key, run_id in named
+                if run_id is not None and not (runs_dir(self.registry) / run_id).exists()]
+
+    def prepare(self, command: str, retrain_missing: bool = False) -> list[tuple[str, Run]]:
         """Check every teacher, create the run folder of every distinct cell that has none (recorded in
-        state.json), and return (cell, run) for each, finished ones included. Nothing trains here."""
+        state.json), and return (cell, run) for each, finished ones included. Nothing trains here.
+
+        Runs that state.json names but the registry lacks are refused unless `retrain_missing`: the usual
+        cause is the wrong registry, where retraining would re-point state.json away from the real runs."""
         self.check_teachers()
+        missing = self.missing_runs()
+        if missing and not retrain_missing:
+            ids = ", ".join(run_id for _, run_id in missing[:5]) + (" …" if len(missing) > 5 else "")
+            raise MiktError(f"{self.state_path} names {len(missing)} run(s) that {self.registry} lacks: {ids}",
+                            hint="is this the study's registry? Restore its runs (benchmarks/snapshot_study.py "
+                                 "--restore), or pass --retrain-missing to train those cells afresh")
         cells = []
         for pair, method, seed in self.distinct_cells():
             key = cell_key(pair, method, seed)
@@ -135,10 +150,11 @@ class Study:
             cells.append((key, run))
         return cells
 
-    def execute(self, command: str, train: Callable[[Run], Any]) -> Iterator[tuple[str, Run, str]]:
+    def execute(self, command: str, train: Callable[[Run], Any],
+                retrain_missing: bool = False) -> Iterator[tuple[str, Run, str]]:
         """The embedded executor: every unfinished cell in turn, in this process. Yields (cell, run, what
         happened); `train` trains and finishes a run."""
-        for key, run in self.prepare(command):
+        for key, run in self.prepare(command, retrain_missing):
             if run.card.status == "completed":
                 yield key, run, "done"
                 continue

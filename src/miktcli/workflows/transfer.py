@@ -71,8 +71,11 @@ def start_transfer(
     teachers = [load_teacher(registry, ref) for ref in teacher_refs]
     sizes = (check_teachers(teachers, encoder_widths if m.name == "mikt" else None, hidden) if teachers
              else (hidden or DEFAULT_HIDDEN, hidden or DEFAULT_HIDDEN))
-    ppo = PPOConfig(num_envs=num_envs, kl_coef=m.default_kl_coef if kl_coef is None else kl_coef,
-                    compile_loss=compile_loss)
+    try:
+        ppo = PPOConfig(num_envs=num_envs, kl_coef=m.default_kl_coef if kl_coef is None else kl_coef,
+                        compile_loss=compile_loss)
+    except ValidationError as err:
+        raise MiktError(f"bad PPO setting: {describe_validation_error(err)}") from err
     config = RunConfig(ppo=ppo, pi_hidden=sizes[0], vf_hidden=sizes[1],
                        options=None if parsed is None else parsed.model_dump())
     return new_run(registry, kind="transfer", env=to, method=method, seed=seed, total_steps=steps, config=config,
