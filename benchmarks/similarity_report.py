@@ -86,8 +86,10 @@ def similarity_report(root: Path, main_name: str, similarity_name: str, method_n
              "![curves](similarity-curves.png)", "", "![student weights](similarity-weights.png)", "",
              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     series, bands, weights = {}, {}, {}
+    left_out: list[str] = []
     for label, grid, run_of, pair, method in groups:
-        runs, steps, curves = completed_curves(grid.model_copy(update={"seeds": seeds}), run_of, pair, method)
+        runs, steps, curves = completed_curves(grid.model_copy(update={"seeds": seeds}), run_of, pair, method,
+                                               left_out)
         if not runs:
             lines.append(f"| {label} | 0 | " + " | ".join("—" for _ in header[2:]) + " |")
             continue
@@ -114,6 +116,8 @@ def similarity_report(root: Path, main_name: str, similarity_name: str, method_n
         png_plot(series, out / "similarity-curves.png", f"teachers of {target}", "mean episode return", bands)
     if weights:
         png_plot(weights, out / "similarity-weights.png", f"{target}: student weight p (policy)", "p (student)")
+    if left_out:
+        lines += ["", "Completed runs left out (incomplete files):", "", *(f"- {problem}" for problem in left_out)]
     lines.append("")
     lines.append("p is the weight on the student's own representation in the weighted combination with the "
                  "teacher's (1 = the teacher unused). The paper (Section 5, Figure 5): the centipede teachers help "

@@ -50,7 +50,7 @@ def fake_run(registry, env, method, seed, curve, eval_return, mixing=None, teach
     result = {"eval_without_teacher": {"return_mean": eval_return}}
     if mixing:
         result["final_mixing_learned"] = mixing
-    run.save_card(status="completed", result=result)
+    run.save_card(status="completed", steps_done=2048 * len(curve), result=result)
     return run.id
 
 
@@ -80,7 +80,7 @@ def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
         study._remember(cell_key(pair_a, methods[method], seed), run_id)
     from miktcli.registry.runs import open_run
     unfinished = fake_run(registry, "hopper", "mikt", 0, [-3, -2, -1], 0, teachers=["b"])
-    open_run(registry, unfinished).save_card(status="created", result={})  # prepared, never trained
+    open_run(registry, unfinished).save_card(status="created", steps_done=0, result={})  # prepared, never trained
     study._remember(cell_key(grid.pairs[1], methods["mikt"], 0), unfinished)
     study.report()
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
@@ -114,6 +114,34 @@ def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
     assert [(r["a"], r["b"], r["measure"]) for r in compared["a → hopper"]] == [
         ("mikt", "vpg", "final return"), ("mikt", "vpg", "mean over training"),
         ("mikt", "vpg", "final eval (no teacher)")]
+
+
+def test_completed_runs_with_incomplete_files_are_left_out_and_named(registry, tmp_path):
+    from miktcli.registry.runs import open_run
+    from miktcli.workflows.grid import Grid
+    from miktcli.workflows.study import Study
+
+    grid = Grid.model_validate({"name": "g", "steps": 6144, "seeds": [0, 1, 2], "marks": [2048, 6144],
+                                "methods": [{"name": "vpg", "method": "vpg"}],
+                                "pairs": [{"from": ["x"], "to": "hopper"}]})
+    study = Study(grid, tmp_path / "out", registry)
+    ids = [fake_run(registry, "hopper", "vpg", seed, [10, 20, 30 + seed], 5) for seed in range(3)]
+    for seed, run_id in enumerate(ids):
+        study._remember(f"->hopper|vpg|{seed}", run_id)
+    truncated = open_run(registry, ids[1])
+    truncated.metrics_path.write_text(truncated.metrics_path.read_text().splitlines(keepends=True)[0])
+    no_eval = open_run(registry, ids[2])
+    no_eval.save_card(result={})
+    report = study.report()
+    assert report.left_out == [f"{ids[1]}: metrics.jsonl ends at 2,048 steps, the run trained 6,144",
+                               f"{ids[2]}: its card has no teacher-free eval result"]
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["x → hopper"]["vpg"]["runs"] == [ids[0]]  # the intact run alone, its curve whole
+    assert summary["x → hopper"]["vpg"]["marks"] == {"2048": {"mean": 10.0, "std": None},
+                                                     "6144": {"mean": 30.0, "std": None}}
+    assert "Completed runs left out" in (tmp_path / "out" / "results.md").read_text()
+    truncated.metrics_path.write_text("")  # nothing at all: still a named problem, not a crash
+    assert study.report().left_out[0] == f"{ids[1]}: metrics.jsonl is empty, the run trained 6,144"
 
 
 def test_grids_with_duplicate_methods_or_pairs_are_refused(tmp_path):

@@ -120,9 +120,11 @@ def study(
                 err.print(f"{key}: {what} {run.id}")
     else:
         _run_on_ray(st, registry, workers, address, grid.eval_episodes, chunk_iterations, retrain_missing)
-    path = st.report()
-    err.print(f"wrote {path}")
-    print_data(path)
+    report = st.report()
+    for problem in report.left_out:
+        err.print(f"warning: left out of the report: {problem}")
+    err.print(f"wrote {report.path}")
+    print_data(report.path)
 
 
 def _run_on_ray(st, registry: Path, workers: int | None, address: str | None, eval_episodes: int,

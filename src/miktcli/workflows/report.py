@@ -8,7 +8,7 @@ import json
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -50,19 +50,42 @@ def mean_pm_std(values) -> str:
     return f"{np.mean(values):.0f} ± {std:.0f}" if math.isfinite(std) else f"{np.mean(values):.0f}"
 
 
-def completed_curves(grid: Grid, run_of: RunOf, pair: PairSpec,
-                     method: MethodSpec) -> tuple[list[Run], np.ndarray, np.ndarray]:
-    """Completed runs of a cell group and their return curves on the common iteration grid."""
+def unusable(run: Run, rows: list[dict[str, Any]]) -> str | None:
+    """Why a completed run's files cannot stand in the report, or None. Its curve must reach the steps its
+    card says it trained, line for line, and its card must hold the teacher-free eval: a metrics file cut
+    short or edited would otherwise shift every mark and mean without a word."""
+    evaluated = run.card.result.get("eval_without_teacher")
+    if not (isinstance(evaluated, dict) and isinstance(evaluated.get("return_mean"), int | float)):
+        return f"{run.id}: its card has no teacher-free eval result"
+    if run.damaged_metric_lines:
+        return f"{run.id}: {run.damaged_metric_lines} damaged line(s) in {run.metrics_path.name}"
+    if not rows or rows[-1]["steps"] != run.card.steps_done:
+        ends = f"ends at {rows[-1]['steps']:,} steps" if rows else "is empty"
+        return f"{run.id}: {run.metrics_path.name} {ends}, the run trained {run.card.steps_done:,}"
+    return None
+
+
+def completed_curves(grid: Grid, run_of: RunOf, pair: PairSpec, method: MethodSpec,
+                     left_out: list[str] | None = None) -> tuple[list[Run], np.ndarray, np.ndarray]:
+    """Completed runs of a cell group and their return curves on the common iteration grid. A completed run
+    whose files are incomplete is left out of both, with the reason appended to `left_out`."""
     runs, curves = [], []
     for seed in grid.seeds:
         run = run_of(cell_key(pair, method, seed))
         if run is None or run.card.status != "completed":
             continue
         rows = run.read_metrics()
+        problem = unusable(run, rows)
+        if problem:
+            if left_out is not None and problem not in left_out:
+                left_out.append(problem)
+            continue
         runs.append(run)
         curves.append([(r["steps"], np.nan if r["return_mean"] is None else r["return_mean"]) for r in rows])
     if not curves:
         return [], np.zeros(0), np.zeros((0, 0))
+    # Runs of one grid share the rollout size, so their curves have the same steps; a shorter one (another
+    # batch size) would be cut to the common part, never stretched.
     length = min(len(c) for c in curves)
     steps = np.array([s for s, _ in curves[0][:length]])
     return runs, steps, np.array([[v for _, v in c[:length]] for c in curves])
@@ -120,7 +143,12 @@ def run_row(run: Run | None) -> str:
                        code])
 
 
-def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: RunOf) -> Path:
+class Report(NamedTuple):
+    path: Path
+    left_out: list[str]  # completed runs whose files could not be used, each with the reason
+
+
+def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: RunOf) -> Report:
     """results.md (tables and comparisons per pair), summary.json, comparisons.json and the curve and
     student-weight plots."""
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -137,8 +165,9 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
     summary: dict[str, Any] = {}
     comparisons: dict[str, list[dict[str, Any]]] = {}
     panels = []
+    left_out: list[str] = []
     for pair in g.pairs:
-        data = {m.name: completed_curves(grid, run_of, pair, m) for m in g.methods}
+        data = {m.name: completed_curves(grid, run_of, pair, m, left_out) for m in g.methods}
         base_runs, base_steps, base_curves = data[g.baseline]
         base_final = float(np.nanmean(base_curves[:, -1])) if len(base_runs) else None
         marks = [m for m in g.marks if m <= g.steps] or [g.steps]
@@ -164,7 +193,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
             std = sample_std(curves, axis=0)
             cells = ["—" if i < 0 or i >= len(mean) or math.isnan(mean[i]) else mean_pm_std(curves[:, i])
                      for i in mark_index.values()]
-            evals = [r.card.result["eval_without_teacher"]["return_mean"] for r in runs]
+            evals = [r.card.result["eval_without_teacher"]["return_mean"] for r in runs]  # checked by unusable
             reach = reach_75 = "—"
             if base_final is not None:
                 reach, reach_75 = (first_reach(steps, mean, level)
@@ -216,6 +245,10 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
     if len(panels) > 1:  # every pair at a glance: the figure for a README
         png_panels(panels, out_dir / "summary.png", "mean episode return")
         lines[2:2] = ["![every pair](summary.png)", ""]
+    if left_out:  # said at the top: these runs finished but their numbers are in no table above
+        lines[2:2] = ["**Completed runs left out** (their files are incomplete; restore them from a snapshot or "
+                      "train the cells again):", "", *(f"- {problem}" for problem in left_out), ""]
+        summary["left_out"] = left_out
     write_tensorboard_tree(grid, out_dir / "tensorboard", run_of)
     lines += ["## Runs", "", "Cells without teachers (`-`) are one run shared by every pair with that target. "
               "*state* is the run's when this report was written; *final train return* the mean over the last 100 "
@@ -230,7 +263,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
     write_text_atomic(path, "\n".join(lines) + "\n")
     write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2, ensure_ascii=False))
     write_text_atomic(out_dir / "comparisons.json", json.dumps(comparisons, indent=2, ensure_ascii=False))
-    return path
+    return Report(path, left_out)
 
 
 def _json_number(value: float) -> float | None:

@@ -19,7 +19,7 @@ from miktcli.registry.files import write_text_atomic
 from miktcli.registry.runs import Run, lock_owner, open_run, runs_dir
 from miktcli.registry.teachers import REF_RE, resolve
 from miktcli.workflows.grid import Grid, MethodSpec, PairSpec, cell_key, legacy_cell_key
-from miktcli.workflows.report import write_report
+from miktcli.workflows.report import Report, write_report
 from miktcli.workflows.session import whole_rollouts
 from miktcli.workflows.transfer import start_transfer
 
@@ -162,6 +162,6 @@ class Study:
             train(run)
             yield key, open_run(self.registry, run.id), "finished"
 
-    def report(self) -> Path:
+    def report(self) -> Report:
         """Aggregate whatever has finished into results.md, summary.json and plots (see workflows.report)."""
         return write_report(self.grid, self.out_dir, self.cells, self.run_of)
