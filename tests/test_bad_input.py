@@ -122,8 +122,10 @@ def test_plot_needs_a_view_and_a_file_not_a_folder(two_vpg_runs, registry, tmp_p
     assert "--coupling or --curve" in mikt("inspect", "run1", "--plot", tmp_path / "x.png", code=2).output
     r = mikt("inspect", "run1", "--curve", "--plot", tmp_path, code=1)
     assert "is a folder" in r.output
-    r = mikt("eval", "run1", "--episodes", 1, "--video", tmp_path, code=1)
-    assert "is a folder" in r.output
+    (tmp_path / "dir.mp4").mkdir()
+    assert "is a folder" in mikt("eval", "run1", "--episodes", 1, "--video", tmp_path / "dir.mp4", code=1).output
+    # an .png video would be overwritten by its own poster
+    assert "not an .mp4 path" in mikt("eval", "run1", "--episodes", 1, "--video", tmp_path / "v.png", code=2).output
 
 
 def test_an_unwritable_video_path_is_refused_before_the_episodes(two_vpg_runs, registry, tmp_path, monkeypatch):
@@ -196,3 +198,91 @@ def test_a_study_refuses_runs_its_registry_lacks_unless_told_to_retrain(registry
     mikt("study", grid, "--out", out, "--retrain-missing")
     assert json.loads((out / "state.json").read_text()) == {"->hopper|vpg|0": "run1"}
     assert open_run(registry, "run1").card.status == "completed"
+
+
+# found by the second review ---------------------------------------------------------------------------------------
+
+def grid_error(tmp_path, body):
+    from miktcli.errors import MiktError
+    from miktcli.workflows.grid import load_grid
+
+    (tmp_path / "g.toml").write_text(body)
+    with pytest.raises(MiktError) as caught:
+        load_grid(tmp_path / "g.toml")
+    return str(caught.value)
+
+
+PAIR = '[[pairs]]\nfrom = ["{t}"]\nto = "hopper"\nlabel = "{label}"\n'
+VPG = '[[methods]]\nname = "{name}"\nmethod = "vpg"\n'
+
+
+@pytest.mark.parametrize(("head", "body", "message"), [
+    ('name = "x"\nsteps = 2048\nseeds = [0]\n', PAIR.format(t="a", label="same") + PAIR.format(t="b", label="same")
+     + VPG.format(name="vpg"), "duplicate pair label: same"),
+    ('name = "x"\nsteps = 2048\nseeds = [0]\nbaseline = "m x"\n', PAIR.format(t="a", label="p")
+     + VPG.format(name="m x") + VPG.format(name="m-x"), "duplicate method name (as a file name): m-x"),
+    ('name = "x"\nsteps = 4096\nseeds = [0]\nmarks = [2048, 99999]\n', PAIR.format(t="a", label="p")
+     + VPG.format(name="vpg"), "mark 99,999 is outside"),
+    ('name = "../../escaped"\nsteps = 2048\nseeds = [0]\n', PAIR.format(t="a", label="p") + VPG.format(name="vpg"),
+     "field 'name'"),
+    ('name = "x"\nsteps = 2048\nseeds = [-1]\n', PAIR.format(t="a", label="p") + VPG.format(name="vpg"),
+     "field 'seeds.0'"),
+])
+def test_grids_whose_reports_would_collide_or_mislead_are_refused(tmp_path, head, body, message):
+    assert message in grid_error(tmp_path, head + body)
+
+
+def test_options_of_another_method_are_refused_not_ignored(registry, tmp_path):
+    mikt("teacher", "train", "hopper", *TINY, "--name", "tiny")
+    r = mikt("transfer", "--method", "mlpp", "--from", "tiny", "--to", "hopper", "--no-mi", *TINY, code=2)
+    assert "'--mi'" in r.output and "does not apply to --method mlpp" in r.output
+    r = mikt("transfer", "--from", "tiny", "--from", "tiny@v1", "--to", "hopper", *TINY, code=1)
+    assert "teacher tiny@v1 is given more than once" in r.output
+    grid = tmp_path / "g.toml"
+    grid.write_text('name = "x"\nsteps = 2048\nseeds = [0]\n[[pairs]]\nfrom = ["tiny"]\nto = "hopper"\n'
+                    '[[methods]]\nname = "vpg"\nmethod = "vpg"\nmikt = { mi = false }\n')
+    assert "method vpg takes no options; got mi" in mikt("study", grid, "--out", tmp_path / "out", code=1).output
+    assert [p.name for p in (registry / "runs").iterdir()] == ["run1"]  # the teacher's run only
+
+
+def test_an_empty_or_reversed_coupling_ramp_is_refused(registry):
+    from miktcli.errors import MiktError
+    from miktcli.workflows.transfer import start_transfer
+
+    mikt("teacher", "train", "hopper", *TINY, "--name", "tiny")
+    for ramp in ({"ramp_start": 0.5, "drop_teacher_at": 0.5}, {"ramp_start": 0.9, "drop_teacher_at": 0.2},
+                 {"drop_teacher_at": 1.5}):
+        with pytest.raises(MiktError, match="bad mikt option"):
+            start_transfer(registry, to="hopper", method="mikt", teacher_refs=["tiny"], steps=2048, seed=0,
+                           command="test", options=ramp)
+
+
+def test_an_unwritable_study_folder_is_found_before_any_run_exists(registry, tmp_path, monkeypatch):
+    import miktcli.workflows.study as study_module
+
+    grid = tmp_path / "g.toml"
+    grid.write_text(GRID.format(episodes=1))
+    out, real_access = tmp_path / "out", study_module.os.access
+    monkeypatch.setattr(study_module.os, "access", lambda path, mode: path != out and real_access(path, mode))
+    assert "cannot write the study's results" in mikt("study", grid, "--out", out, code=1).output
+    assert not (registry / "runs").exists()
+
+
+def test_a_name_with_a_trailing_newline_is_refused(registry):
+    assert "invalid teacher name" in mikt("teacher", "train", "hopper", *TINY, "--name", "nl\n", code=1).output
+
+
+def test_teacher_list_names_files_stored_under_another_name(registry):
+    mikt("teacher", "train", "hopper", *TINY, "--name", "tiny")
+    copy = registry / "teachers" / "copy" / "v7.safetensors"
+    copy.parent.mkdir()
+    shutil.copy(registry / "teachers" / "tiny" / "v1.safetensors", copy)
+    r = mikt("teacher", "list", code=1)
+    assert "copy@v7" in r.output and "1 teacher file(s)" in r.output
+    from miktcli.cli.app import app
+    from test_hardening import runner
+
+    result = runner.invoke(app, ["teacher", "list", "--json"])  # stdout: the JSON; stderr: the error line
+    assert result.exit_code == 1
+    listed = json.loads(result.stdout)
+    assert [(row["ref"], row["error"] is None) for row in listed] == [("copy@v7", False), ("tiny@v1", True)]

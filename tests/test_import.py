@@ -145,3 +145,50 @@ def test_unsupported_shapes_are_refused_clearly(registry, tmp_path, case, messag
                 out.writestr("data", z.read("data"))
                 out.writestr("policy.pth", buffer.getvalue())
     assert message in mikt("teacher", "import", path, "--env", "hopper", code=1).output
+
+
+def fixture_with(tmp_path, name, data=None, weights=None, compress=zipfile.ZIP_STORED):
+    """The SB3 fixture with its `data` or weights replaced."""
+    path = tmp_path / name
+    with zipfile.ZipFile(FIXTURE) as z, zipfile.ZipFile(path, "w", compress) as out:
+        out.writestr("data", z.read("data") if data is None else data)
+        out.writestr("policy.pth", z.read("policy.pth") if weights is None else weights)
+    return path
+
+
+@pytest.mark.parametrize("activation", ["LeakyReLU", "ReLU6", "Tanhshrink"])
+def test_activations_that_merely_contain_relu_or_tanh_are_refused(registry, tmp_path, activation):
+    with zipfile.ZipFile(FIXTURE) as z:
+        data = json.loads(z.read("data"))
+    data["policy_kwargs"]["activation_fn"] = f"<class 'torch.nn.modules.activation.{activation}'>"
+    path = fixture_with(tmp_path, "a.zip", data=json.dumps(data))
+    assert "is not supported" in mikt("teacher", "import", path, "--env", "hopper", code=1).output
+
+
+def test_damaged_archives_and_statistics_are_one_line_errors(registry, tmp_path):
+    path = fixture_with(tmp_path, "deflated.zip", compress=zipfile.ZIP_DEFLATED)
+    raw = bytearray(path.read_bytes())
+    start = raw.index(b"policy.pth") + 40  # inside the compressed weights
+    raw[start:start + 64] = bytes(64)
+    path.write_bytes(bytes(raw))
+    r = mikt("teacher", "import", path, "--env", "hopper", code=1)
+    assert "not a readable zip" in r.output or "not a plain state dict" in r.output
+    assert "internal error" not in r.output
+    path = fixture_with(tmp_path, "deep.zip", data="[" * 100_000)
+    assert "not JSON" in mikt("teacher", "import", path, "--env", "hopper", code=1).output
+    stats = tmp_path / "stats.json"
+    for body, message in (({"mean": [0] * 11, "var": [1] * 11, "count": float("nan")}, "'count' must be"),
+                          ({"mean": [[0] * 11], "var": [[1] * 11]}, "flat lists of 11 numbers"),
+                          ({"mean": [10 ** 400] + [0] * 10, "var": [1] * 11}, "lists of numbers")):
+        stats.write_text(json.dumps(body))
+        assert message in mikt("teacher", "import", FIXTURE, "--env", "hopper", "--obs-stats", stats, code=1).output
+    assert not (registry / "teachers").exists()
+
+
+def test_a_cleanrl_actor_without_a_hidden_layer_is_refused(registry, tmp_path):
+    agent = cleanrl_agent(11, 3)
+    state = {k: v for k, v in agent.state_dict().items() if not k.startswith("actor_mean.") or k.startswith(
+        "actor_mean.4.")}
+    path = tmp_path / "m.cleanrl_model"
+    torch.save(state, path)
+    assert "at least one hidden layer" in mikt("teacher", "import", path, "--env", "hopper", code=1).output

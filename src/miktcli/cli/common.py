@@ -47,13 +47,30 @@ def setup_torch() -> None:
 RESUME_COMPATIBLE = {"resume", "as_json", "registry", "eval_episodes"}
 
 
-def refuse_options_with_resume(ctx: typer.Context) -> None:
-    """A usage error (exit 2) naming the first option or argument given on the command line beside --resume."""
+def given_on_command_line(ctx: typer.Context, names: set[str] | None = None) -> list[str]:
+    """The flags (or argument names) of the parameters in `names` (all when None) that the user gave."""
+    given = []
     for param in ctx.command.params:
+        if names is not None and param.name not in names:
+            continue
         source = ctx.get_parameter_source(param.name)
         # compared by name: typer ships its own copy of click, whose enum is not click's
-        if param.name in RESUME_COMPATIBLE or source is None or source.name in ("DEFAULT", "DEFAULT_MAP"):
-            continue
-        flag = param.opts[0] if param.param_type_name == "option" else param.name.upper()
+        if source is not None and source.name not in ("DEFAULT", "DEFAULT_MAP"):
+            given.append(param.opts[0] if param.param_type_name == "option" else param.name.upper())
+    return given
+
+
+def refuse_options_of_other_methods(ctx: typer.Context, method: str, names: set[str]) -> None:
+    """A usage error (exit 2) for an option of another method, which this one would silently ignore."""
+    given = given_on_command_line(ctx, names)
+    if given:
+        raise typer.BadParameter(f"does not apply to --method {method}, which has no such option", ctx=ctx,
+                                 param_hint=f"'{given[0]}'")
+
+
+def refuse_options_with_resume(ctx: typer.Context) -> None:
+    """A usage error (exit 2) naming the first option or argument given on the command line beside --resume."""
+    given = given_on_command_line(ctx, {p.name for p in ctx.command.params} - RESUME_COMPATIBLE)
+    if given:
         raise typer.BadParameter("cannot be combined with --resume: a resumed run keeps the settings its card "
-                                 "records", ctx=ctx, param_hint=f"'{flag}'")
+                                 "records", ctx=ctx, param_hint=f"'{given[0]}'")

@@ -43,6 +43,9 @@ def eval_command(
         raise typer.BadParameter(f"episode seeds run from {seed} to {seed + episodes - 1}, past 2³²−1",
                                  param_hint="'--seed'")
     render = render_offscreen or video is not None
+    if video is not None and video.suffix.lower() != ".mp4":  # its poster goes beside it as .png
+        raise typer.BadParameter(f"{video} is not an .mp4 path (the video is MP4; its poster is written beside "
+                                 "it as .png)", param_hint="'--video'")
     if render:  # refuse an unwritable path before the episodes, not after them
         video = prepare_output(video or Path(f"{target.replace('@', '-')}-eval.mp4"))
         prepare_output(video.with_suffix(".png"))

@@ -27,7 +27,7 @@ Examples:
 def _is_run(target: str) -> bool:
     from miktcli.registry.runs import RUN_TARGET_RE
 
-    return bool(RUN_TARGET_RE.match(target))
+    return bool(RUN_TARGET_RE.fullmatch(target))
 
 
 def _sampled(rows: list[dict], n: int) -> list[dict]:

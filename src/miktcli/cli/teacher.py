@@ -115,12 +115,16 @@ def _teacher_rows(reg: Path) -> list[dict]:
     for name in list_names(reg):
         for v in versions(reg, name):
             path = teachers_dir(reg) / name / f"v{v}.safetensors"
+            stored_as = f"{name}@v{v}"  # where the file lies is what `eval` and `transfer` resolve
             try:
                 card = read_teacher_card(path)  # the header only: no weights are loaded
-                rows.append({"ref": card.ref, "card": card.model_dump(mode="json"), "path": str(path),
+                if card.ref != stored_as:
+                    raise MiktError(f"{path}: the card names {card.ref} but the file is stored as {stored_as} "
+                                    "(moved or tampered)")
+                rows.append({"ref": stored_as, "card": card.model_dump(mode="json"), "path": str(path),
                              "error": None})
             except MiktError as e:
-                rows.append({"ref": f"{name}@v{v}", "card": None, "path": str(path), "error": str(e)})
+                rows.append({"ref": stored_as, "card": None, "path": str(path), "error": str(e)})
     return rows
 
 
@@ -131,9 +135,16 @@ def list_teachers(
 ) -> None:
     """List teachers and their versions (reads file headers only)."""
     rows = _teacher_rows(registry)
+    unreadable = sum(r["error"] is not None for r in rows)
     if as_json:
         print_json(rows)
-        return
+    else:
+        _print_teacher_table(rows, registry)
+    if unreadable:  # the readable ones are listed; the exit status says something is wrong
+        raise MiktError(f"{unreadable} teacher file(s) in {registry} cannot be used (see the list)")
+
+
+def _print_teacher_table(rows: list[dict], registry: Path) -> None:
     if not rows:
         err.print(f"no teachers in {registry}; train one with: mikt teacher train ENV")
         return

@@ -16,6 +16,7 @@ from miktcli.cli.common import (
     StepsOption,
     command_line,
     note_rounding,
+    refuse_options_of_other_methods,
     refuse_options_with_resume,
     setup_torch,
 )
@@ -71,6 +72,11 @@ def with_flag_hint(error: MiktError) -> MiktError:
     return error
 
 
+# The flags that set MIKT's options (and its encoder check): meaningless for a method without options.
+MIKT_OPTIONS = {"mi", "rl_encoder_grad", "coupling_schedule", "coupling_pi_coef", "coupling_vf_coef", "mi_coef",
+                "lateral", "encoder_width"}
+
+
 def transfer(
     ctx: typer.Context,
     teacher: list[str] = typer.Option(None, "--from", help="Teacher NAME or NAME@vN; repeat for several teachers."),
@@ -120,6 +126,9 @@ def transfer(
         mikt = {"coupling_schedule": coupling_schedule, "coupling_pi_coef": coupling_pi_coef,
                 "coupling_vf_coef": coupling_vf_coef, "mi": mi, "mi_coef": mi_coef,
                 "rl_encoder_grad": rl_encoder_grad, "lateral": lateral}
+        if get_method(method).options is None:
+            refuse_options_of_other_methods(ctx, method, MIKT_OPTIONS)
+            mikt = None
         try:
             run = start_transfer(
                 reg, to=to, method=method, teacher_refs=list(teacher or []), steps=steps, seed=seed,

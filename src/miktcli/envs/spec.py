@@ -66,7 +66,7 @@ class GymnasiumSpec(_SpecBase):
         # gymnasium imports `module` for an id `module:Env`: a spec file must never make it run code.
         if ":" in value:
             raise ValueError(f"'{value}': 'module:Env' ids are refused (they make gymnasium import code)")
-        if not GYM_ID_RE.match(value):
+        if not GYM_ID_RE.fullmatch(value):
             raise ValueError(f"'{value}': expected a registered gymnasium id such as Ant-v4")
         return value
 
@@ -130,7 +130,7 @@ def spec_names(directory: Path | None = None) -> list[str]:
 
 def load_spec(name: str, directory: Path | None = None) -> CentipedeSpec | GymnasiumSpec:
     directory = directory or envspecs_dir()
-    if not SPEC_NAME_RE.match(name):
+    if not SPEC_NAME_RE.fullmatch(name):
         raise MiktError(f"invalid environment name '{name}': lowercase letters, digits, '.', '_' and '-'")
     path = directory / f"{name}.toml"
     if not path.is_file():

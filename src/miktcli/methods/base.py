@@ -34,7 +34,11 @@ class Method:
     for_transfer: bool = True  # offered by `mikt transfer` (the teacher trainer's plain PPO is not)
 
     def parse_options(self, values: dict | None) -> BaseModel | None:
-        return None if self.options is None else self.options.model_validate(values or {})
+        if self.options is None:
+            if values:  # options for another method (a grid's `mikt = {...}` under vpg): never silently dropped
+                raise MiktError(f"method {self.name} takes no options; got {', '.join(sorted(values))}")
+            return None
+        return self.options.model_validate(values or {})
 
     def check_teacher_count(self, n: int) -> None:
         if n < self.min_teachers:

@@ -16,7 +16,7 @@ import math
 from typing import Literal
 
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from torch import nn
 from torch.nn import functional as F
 
@@ -53,13 +53,21 @@ class MiktConfig(BaseModel):
     mi_coef: float = Field(0.5, ge=0)
     mi_log_std_min: float = Field(-5.0, description="clamp of q's log-std; constant obs dims make L_MI unbounded")
     rl_encoder_grad: bool = Field(True, description="PPO gradient into φ (off: 'w/o RL gradients' ablation)")
-    ramp_start: float = 0.45
-    drop_teacher_at: float = 0.90
+    ramp_start: float = Field(0.45, ge=0, le=1, description="fraction of training where the coupling ramp starts")
+    drop_teacher_at: float = Field(0.90, ge=0, le=1, description="fraction where the ramp ends, teacher dropped")
     lateral: Literal["identity", "projection"] = Field(
         "identity",
         description="identity (the paper: no learnable matrix transforms the teacher representation); "
         "projection (the authors' code): each teacher pre-activation times a learnable square matrix U, no "
         "bias, Glorot-uniform init, before mixing")
+
+
+    @model_validator(mode="after")
+    def _ramp_has_length(self) -> MiktConfig:
+        # the ramp divides by its length: an empty or reversed one has no meaning
+        if self.ramp_start >= self.drop_teacher_at:
+            raise ValueError(f"ramp_start ({self.ramp_start}) must be below drop_teacher_at ({self.drop_teacher_at})")
+        return self
 
 
 class GaussianDecoder(nn.Module):

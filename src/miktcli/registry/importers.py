@@ -25,6 +25,7 @@ import io
 import json
 import re
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -73,12 +74,18 @@ def _stack(state: dict[str, torch.Tensor], prefix: str, where: str) -> list[tupl
     for index in sorted(layers):
         if set(layers[index]) != {"weight", "bias"}:
             raise MiktError(f"{where}: layer '{prefix}.{index}' lacks a weight or a bias")
+        weight, bias = layers[index]["weight"], layers[index]["bias"]
+        if weight.dim() != 2 or bias.dim() != 1:
+            raise MiktError(f"{where}: layer '{prefix}.{index}' has a {weight.dim()}-D weight and a {bias.dim()}-D "
+                            "bias; a Linear layer has 2-D and 1-D")
         out.append((layers[index]["weight"], layers[index]["bias"]))
     return out
 
 
 def _assemble(pi_hidden: list[tuple], pi_head: tuple, vf_hidden: list[tuple], vf_head: tuple,
               log_std: torch.Tensor, activation: str, where: str) -> GaussianActorCritic:
+    if not pi_hidden or not vf_hidden:  # MIKT mixes hidden layers: a policy without one has none to share
+        raise MiktError(f"{where}: the policy and value networks need at least one hidden layer each")
     obs_dim, act_dim = pi_hidden[0][0].shape[1], pi_head[0].shape[0]
     sizes_pi = [w.shape[0] for w, _ in pi_hidden]
     sizes_vf = [w.shape[0] for w, _ in vf_hidden]
@@ -115,17 +122,21 @@ def read_sb3_zip(path: Path) -> ImportedPolicy:
             weights = archive.read("policy.pth")
             version = archive.read("_stable_baselines3_version").decode().strip() \
                 if "_stable_baselines3_version" in names else None
-    except (zipfile.BadZipFile, OSError, UnicodeDecodeError) as err:
-        raise MiktError(f"{where}: not a readable zip: {err}") from None
+    except (zipfile.BadZipFile, OSError, UnicodeDecodeError, zlib.error, RuntimeError, NotImplementedError) as err:
+        # damaged deflate streams (zlib.error), encrypted members (RuntimeError), unknown compressions
+        raise MiktError(f"{where}: not a readable zip: {type(err).__name__}: {err}") from None
     try:
         data = json.loads(data_text)  # plain JSON: `:serialized:` values stay base64 strings, never unpickled
-    except json.JSONDecodeError as err:
+    except (json.JSONDecodeError, RecursionError) as err:
         raise MiktError(f"{where}: its 'data' is not JSON: {err}") from None
     kwargs = data.get("policy_kwargs") if isinstance(data, dict) else None
     activation_text = str(kwargs.get("activation_fn", "")) if isinstance(kwargs, dict) else ""
-    if "ReLU" in activation_text:
+    # SB3 records the class as "<class 'torch.nn.modules.activation.ReLU'>": its exact name decides, since
+    # LeakyReLU, ReLU6 or Tanhshrink are other functions that merely contain "ReLU" or "Tanh"
+    class_name = activation_text.strip("<>").removeprefix("class ").strip("'\"").rsplit(".", 1)[-1]
+    if class_name == "ReLU":
         activation = "relu"
-    elif activation_text == "" or "Tanh" in activation_text:
+    elif activation_text == "" or class_name == "Tanh":
         activation = "tanh"  # PPO's MlpPolicy default
     else:
         raise MiktError(f"{where}: activation {activation_text!r} is not supported (tanh or relu)")
@@ -171,18 +182,23 @@ def read_obs_stats(path: Path, obs_dim: int) -> dict[str, torch.Tensor]:
         mean = torch.tensor(data["mean"], dtype=torch.float64)
         var = torch.tensor(data["var"], dtype=torch.float64)
         count = torch.tensor(float(data.get("count", 1e6)), dtype=torch.float64)
-    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
-        raise MiktError(f"{path}: expected JSON with 'mean' and 'var' lists (and optionally 'count'): {err}") from None
+    except (json.JSONDecodeError, RecursionError, KeyError, TypeError, ValueError, OverflowError,
+            UnicodeDecodeError) as err:
+        raise MiktError(f"{path}: expected JSON with 'mean' and 'var' lists of numbers (and optionally "
+                        f"'count'): {type(err).__name__}: {err}") from None
     if mean.shape != (obs_dim,) or var.shape != (obs_dim,):
-        raise MiktError(f"{path}: statistics for {mean.numel()}/{var.numel()} dims, the policy reads {obs_dim}")
+        raise MiktError(f"{path}: 'mean' has shape {tuple(mean.shape)} and 'var' {tuple(var.shape)}; the policy "
+                        f"reads {obs_dim} dims, so both must be flat lists of {obs_dim} numbers")
     if not bool(torch.isfinite(mean).all() and torch.isfinite(var).all() and (var >= 0).all()):
         raise MiktError(f"{path}: statistics must be finite, with var ≥ 0")
+    if not (torch.isfinite(count) and count > 0):
+        raise MiktError(f"{path}: 'count' must be a positive finite number, got {count.item()}")
     return {"mean": mean, "var": var, "count": count}
 
 
 def read_foreign_policy(path: Path, fmt: str, obs_stats: Path | None) -> ImportedPolicy:
     if not Path(path).is_file():
-        raise MiktError(f"{path}: no such file")
+        raise MiktError(f"{path}: " + ("a folder, not a model file" if Path(path).is_dir() else "no such file"))
     if fmt not in FORMATS:
         raise MiktError(f"unknown format '{fmt}'; known: {', '.join(FORMATS)}")
     imported = read_sb3_zip(path) if fmt == "sb3" else read_cleanrl(path)

@@ -64,7 +64,7 @@ def run_ids(registry: Path) -> list[str]:
     root = runs_dir(registry)
     if not root.is_dir():
         return []
-    found = [(int(m.group(1)), p.name) for p in root.iterdir() if (m := RUN_RE.match(p.name)) and p.is_dir()]
+    found = [(int(m.group(1)), p.name) for p in root.iterdir() if (m := RUN_RE.fullmatch(p.name)) and p.is_dir()]
     return [name for _, name in sorted(found)]
 
 
@@ -181,7 +181,7 @@ class Run:
         for line in self.metrics_path.read_bytes().splitlines():
             try:
                 row = json.loads(line.decode("utf-8"))
-            except (UnicodeDecodeError, json.JSONDecodeError):
+            except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):  # deep nesting: damaged too
                 row = None
             if not (isinstance(row, dict) and all(isinstance(row.get(k), int) for k in ("iteration", "steps"))
                     and all(v is None or isinstance(v, int | float) for v in row.values())):
@@ -255,8 +255,8 @@ def open_run(registry: Path, run_id: str) -> Run:
         raw = json.loads(card_path.read_bytes().decode("utf-8"))
     except UnicodeDecodeError:
         raise MiktError(f"{card_path}: not a text file (not UTF-8): damaged") from None
-    except json.JSONDecodeError as err:
-        raise MiktError(f"{card_path}: not valid JSON: {err}") from err
+    except (json.JSONDecodeError, RecursionError) as err:
+        raise MiktError(f"{card_path}: not valid JSON: {type(err).__name__}: {err}") from None
     found = raw.get("schema_version") if isinstance(raw, dict) else None
     if isinstance(found, int) and found > RUN_SCHEMA_VERSION:
         raise MiktError(f"{card_path}: run card schema version {found} is newer than this mikt understands "

@@ -36,10 +36,10 @@ def check_name(name: str) -> str:
         raise MiktError("teacher name is empty")
     if len(name) > MAX_NAME_LENGTH:
         raise MiktError(f"teacher name '{name[:20]}…' is {len(name)} characters long; at most {MAX_NAME_LENGTH}")
-    if not NAME_RE.match(name) or ".." in name:
-        raise MiktError(f"invalid teacher name '{name}': use lowercase letters, digits, '.', '_' and '-', "
+    if not NAME_RE.fullmatch(name) or ".." in name:
+        raise MiktError(f"invalid teacher name {name!r}: use lowercase letters, digits, '.', '_' and '-', "
                         "starting with a letter or digit")
-    if RESERVED_NAME_RE.match(name):
+    if RESERVED_NAME_RE.fullmatch(name):
         raise MiktError(f"teacher name '{name}' is reserved: eval and inspect read it as a run or an alias")
     return name
 
@@ -54,13 +54,13 @@ def versions(registry: Path, name: str) -> list[int]:
     folder = teachers_dir(registry) / name
     if not folder.is_dir():
         return []
-    found = (VERSION_FILE_RE.match(p.name) for p in folder.iterdir())
+    found = (VERSION_FILE_RE.fullmatch(p.name) for p in folder.iterdir())
     return sorted(int(m.group(1)) for m in found if m)
 
 
 def resolve(registry: Path, ref: str) -> Path:
     """`name`, `name@latest` or `name@vN` → the file; unknown names and versions list what exists."""
-    m = REF_RE.match(ref)
+    m = REF_RE.fullmatch(ref)
     if not m:
         raise MiktError(f"invalid teacher reference '{ref}': expected NAME or NAME@vN")
     name, version = m.group("name"), m.group("version")

@@ -51,7 +51,7 @@ def load_run_policy(registry: Path, run_id: str, with_teacher: bool) -> LoadedPo
 
 def load_policy(registry: Path, target: str, with_teacher: bool = False) -> LoadedPolicy:
     """`target` is a run (runN, last) or a teacher reference (NAME, NAME@vN)."""
-    if RUN_TARGET_RE.match(target):
+    if RUN_TARGET_RE.fullmatch(target):
         return load_run_policy(registry, target, with_teacher)
     if with_teacher:
         raise MiktError("--with-teacher applies to runs (runN), not to teachers")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -45,12 +45,18 @@ class MethodSpec(BaseModel):
         return self.method != "vpg"
 
 
+def file_slug(text: str) -> str:
+    """A pair's or method's name as a file or folder name (plots, TensorBoard runs)."""
+    return "".join(c if c.isalnum() or c in "._-" else "-" for c in text.replace(" → ", "-to-")).strip("-")
+
+
 class Grid(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    name: str
+    # the default results folder is benchmarks/results/NAME: a name, never a path
+    name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
     steps: int = Field(gt=0)
-    seeds: list[int] = Field(min_length=1)
+    seeds: list[Annotated[int, Field(ge=0, le=2**32 - 1)]] = Field(min_length=1)
     marks: list[int] = Field(default_factory=list, description="step marks of the results table")
     eval_episodes: int = Field(10, ge=1)
     baseline: str = Field("vpg", description="the method whose final return the others race to")
@@ -61,12 +67,19 @@ class Grid(BaseModel):
     @model_validator(mode="after")
     def _no_duplicates(self) -> Grid:
         # Two methods of one name would share cells and overwrite each other; so would two equal pairs.
+        # Report files are named by slugs, so names that differ only in punctuation would overwrite each other.
         for what, keys in (("method name", [m.name for m in self.methods]),
+                           ("method name (as a file name)", [file_slug(m.name) for m in self.methods]),
                            ("pair", [f"{'+'.join(p.teachers)} → {p.to}" for p in self.pairs]),
+                           ("pair label", [p.name for p in self.pairs]),
+                           ("pair label (as a file name)", [file_slug(p.name) for p in self.pairs]),
                            ("seed", [str(s) for s in self.seeds])):
             dupes = sorted({k for k in keys if keys.count(k) > 1})
             if dupes:
                 raise ValueError(f"duplicate {what}: {', '.join(dupes)}")
+        beyond = [m for m in self.marks if not 0 < m <= self.steps]
+        if beyond:
+            raise ValueError(f"mark {beyond[0]:,} is outside the run's 1…{self.steps:,} steps")
         if self.baseline not in {m.name for m in self.methods}:
             raise ValueError(f"baseline '{self.baseline}' is not one of the methods")
         return self

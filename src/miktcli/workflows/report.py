@@ -18,7 +18,7 @@ from miktcli.registry.files import write_bytes_atomic, write_text_atomic
 from miktcli.registry.runs import Run
 from miktcli.registry.tensorboard import EVENTS_FILE, event_records
 from miktcli.stats import compare
-from miktcli.workflows.grid import Grid, MethodSpec, PairSpec, cell_key
+from miktcli.workflows.grid import Grid, MethodSpec, PairSpec, cell_key, file_slug
 
 RunOf = Callable[[str], Run | None]  # a cell key → its run, if one was started
 PerSeed = dict[str, dict[str, np.ndarray]]  # method → measure → one value per completed seed
@@ -170,7 +170,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
         data = {m.name: completed_curves(grid, run_of, pair, m, left_out) for m in g.methods}
         base_runs, base_steps, base_curves = data[g.baseline]
         base_final = float(np.nanmean(base_curves[:, -1])) if len(base_runs) else None
-        marks = [m for m in g.marks if m <= g.steps] or [g.steps]
+        marks = g.marks or [g.steps]  # the grid keeps them within 1…steps
         any_steps = next((steps for runs, steps, _ in data.values() if runs), None)
         mark_index = {}
         for mark in marks:
@@ -232,7 +232,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
             }
         compared, comparisons[pair.name] = comparison_table(per_seed)
         lines += compared
-        slug = "".join(c if c.isalnum() else "-" for c in pair.name.replace(" → ", "-to-")).strip("-")
+        slug = file_slug(pair.name)
         if series:
             panels.append((series, pair.name, bands))
             png_plot(series, out_dir / f"curves-{slug}.png", pair.name, "mean episode return", bands)
@@ -270,10 +270,6 @@ def _json_number(value: float) -> float | None:
     return float(value) if math.isfinite(float(value)) else None
 
 
-def _slug(text: str) -> str:
-    return "".join(c if c.isalnum() or c in "._-" else "-" for c in text.replace(" → ", "-to-")).strip("-")
-
-
 def write_tensorboard_tree(grid: Grid, folder: Path, run_of: RunOf) -> None:
     """One event file per started cell, under PAIR/METHOD/seedN, made from the run's metrics.jsonl (the
     source of truth), so TensorBoard groups and compares the study's runs. A shared run appears under every
@@ -284,5 +280,5 @@ def write_tensorboard_tree(grid: Grid, folder: Path, run_of: RunOf) -> None:
                 run = run_of(cell_key(pair, method, seed))
                 if run is None:
                     continue
-                target = folder / _slug(pair.name) / _slug(method.name) / f"seed{seed}" / EVENTS_FILE
+                target = folder / file_slug(pair.name) / file_slug(method.name) / f"seed{seed}" / EVENTS_FILE
                 write_bytes_atomic(target, event_records(run.read_metrics(), wall_time=0.0))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -26,7 +27,7 @@ from miktcli.workflows.transfer import start_transfer
 
 def names_teacher(ref: str, teacher: TeacherRef) -> bool:
     """Whether a grid's teacher reference (`name`, `name@latest`, `name@vN`) can mean this run's teacher."""
-    m = REF_RE.match(ref)
+    m = REF_RE.fullmatch(ref)
     return bool(m) and m.group("name") == teacher.name and m.group("version") in (None, "latest",
                                                                                    f"v{teacher.version}")
 
@@ -64,8 +65,8 @@ class Study:
             return {}
         try:
             cells = json.loads(self.state_path.read_bytes().decode("utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as err:
-            raise MiktError(f"{self.state_path}: damaged study state: {err}",
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
+            raise MiktError(f"{self.state_path}: damaged study state: {type(err).__name__}: {err}",
                             hint="restore it, or move it away to start the study afresh") from err
         if not (isinstance(cells, dict) and all(isinstance(k, str) and isinstance(v, str) for k, v in cells.items())):
             raise MiktError(f"{self.state_path}: damaged study state: expected an object of cell → run id",
@@ -124,6 +125,10 @@ class Study:
         Runs that state.json names but the registry lacks are refused unless `retrain_missing`: the usual
         cause is the wrong registry, where retraining would re-point state.json away from the real runs."""
         self.check_teachers()
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        if not os.access(self.out_dir, os.W_OK):  # before any run exists: else each try leaves one behind
+            raise MiktError(f"cannot write the study's results to {self.out_dir} (read-only or no permission)",
+                            hint="choose another --out")
         missing = self.missing_runs()
         if missing and not retrain_missing:
             ids = ", ".join(run_id for _, run_id in missing[:5]) + (" …" if len(missing) > 5 else "")

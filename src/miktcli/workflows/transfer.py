@@ -69,6 +69,10 @@ def start_transfer(
         raise MiktError(f"bad {method} option: {describe_validation_error(err)}") from err
     load_spec(to)
     teachers = [load_teacher(registry, ref) for ref in teacher_refs]
+    refs = [t.card.ref for t in teachers]
+    twice = sorted({ref for ref in refs if refs.count(ref) > 1})
+    if twice:  # the same representation offered twice only splits the student's attention
+        raise MiktError(f"teacher {twice[0]} is given more than once")
     sizes = (check_teachers(teachers, encoder_widths if m.name == "mikt" else None, hidden) if teachers
              else (hidden or DEFAULT_HIDDEN, hidden or DEFAULT_HIDDEN))
     try:
