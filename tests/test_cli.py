@@ -101,13 +101,16 @@ def test_end_to_end_teacher_transfer_inspect_eval(registry, tmp_path):
          {"method": "mikt", "kl_coef": 0.0, "rl_encoder_grad": False}, {"loss_mi"}, {"loss_kl"}),
         (("--from", "tiny", "--lateral", "projection"), {"method": "mikt", "lateral": "projection"},
          {"loss_mi", "loss_kl"}, set()),
-        (("--from", "tiny", "--from", "tiny"), {"method": "mikt", "teachers": 2}, {"p_pi_0", "loss_mi"}, set()),
+        (("--from", "tiny@v1", "--from", "tiny@v2"), {"method": "mikt", "teachers": 2}, {"p_pi_0", "loss_mi"},
+         set()),
     ],
     ids=["vpg", "mlpp", "no-mi", "no-rl-grad-no-kl", "projection", "two-teachers"],
 )
 def test_methods_and_ablations_are_recorded_and_change_what_is_trained(
         registry, args, card, metrics_present, metrics_absent):
     mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+    if "tiny@v2" in args:  # a second, different teacher (the same one twice is refused)
+        mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny", "--seed", 1)
     r = mikt("transfer", *args, "--to", "centipede-four", "--steps", 2048, "--eval-episodes", 1, "--json")
     result = json.loads(r.stdout)
     assert result["eval_without_teacher"]["episodes"] == 1
