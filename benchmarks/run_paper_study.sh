@@ -17,12 +17,22 @@ PARALLEL=()
 [ -n "${ADDRESS:-}" ] && PARALLEL=(--address "$ADDRESS")
 
 python "$ROOT/benchmarks/train_teachers.py"          # the v2 teachers (skipped when done)
+# Finished runs live in the registry, which git ignores: copy each into its study's results folder every
+# 10 minutes, so a session that ends abruptly loses at most the cells in flight (commit those snapshots).
+snapshot_all() {
+  for grid in paper-2m paper-2m-controls paper-2m-ablations paper-2m-similarity; do
+    [ -f "$RESULTS/$grid/state.json" ] && python "$ROOT/benchmarks/snapshot_study.py" "$RESULTS/$grid" \
+      --registry "$MIKT_REGISTRY" > /dev/null
+  done
+  return 0
+}
+( while sleep "${SNAPSHOT_EVERY:-600}"; do snapshot_all; done ) &
+SNAPSHOTS=$!
+trap 'kill $SNAPSHOTS 2>/dev/null' EXIT
 for grid in paper-2m paper-2m-controls paper-2m-ablations paper-2m-similarity; do
   mikt study "$ROOT/benchmarks/grids/$grid.toml" --out "$RESULTS/$grid" "${PARALLEL[@]}"
 done
 # The evidence to commit: each finished run's card and metrics beside its study's report, and the
 # teacher-similarity figures (which read those snapshots).
-for grid in paper-2m paper-2m-controls paper-2m-ablations paper-2m-similarity; do
-  python "$ROOT/benchmarks/snapshot_study.py" "$RESULTS/$grid" --registry "$MIKT_REGISTRY"
-done
+snapshot_all
 python "$ROOT/benchmarks/similarity_report.py" "$RESULTS"

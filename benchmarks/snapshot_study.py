@@ -37,6 +37,9 @@ def main() -> None:
         return
     for cell, run_id in sorted(state.items(), key=lambda kv: int(kv[1][3:])):
         source = args.registry / "runs" / run_id
+        if not (source / "run.json").is_file():
+            print(f"{run_id}  {cell}: not in {args.registry}")
+            continue
         card = json.loads((source / "run.json").read_text())
         if card["status"] != "completed":
             print(f"{run_id}  {cell}: {card['status']}, {card['steps_done']:,}/{card['total_steps']:,} steps")
