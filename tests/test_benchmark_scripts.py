@@ -74,6 +74,11 @@ def test_snapshots_restore_into_a_fresh_registry_so_the_study_skips_finished_cel
     script = [sys.executable, str(BENCHMARKS / "snapshot_study.py"), str(out), "--registry", str(registry)]
     subprocess.run(script, check=True, capture_output=True)
     assert (out / "runs" / finished / "metrics.jsonl").exists() and not (out / "runs" / unfinished).exists()
+    lost = (registry / "runs" / unfinished).rename(tmp_path / "lost")  # a run the registry lacks: named,
+    shutil.rmtree(out / "runs")                                        # the others still copied
+    r = subprocess.run(script, check=True, capture_output=True, text=True)
+    assert f"{unfinished}  {key1}: not in" in r.stdout and (out / "runs" / finished / "run.json").exists()
+    lost.rename(registry / "runs" / unfinished)
 
     saved = registry.rename(tmp_path / "old-registry")  # a fresh clone: the committed results, no run folders
     subprocess.run([*script, "--restore"], check=True, capture_output=True)
