@@ -44,13 +44,24 @@ Series = dict[str, list[tuple[float, float]]]
 Bands = dict[str, list[tuple[float, float, float]]]
 
 
-def _draw(ax, series: Series, title: str, ylabel: str, bands: Bands | None) -> None:
+def series_colors(panels: list[Series], palette: list[str], order: list[str] = ()) -> dict[str, str]:
+    """One colour per series name across every panel: the names in `order` first, then the others as they first
+    appear. A study passes its methods, so vpg has one colour in every figure of the report, including a pair
+    that has no mikt curve yet (or a summary panel that never will)."""
+    colors: dict[str, str] = {}
+    for series in [dict.fromkeys(order), *panels]:
+        for name in series:
+            colors.setdefault(name, palette[len(colors) % len(palette)])
+    return colors
+
+
+def _draw(ax, series: Series, title: str, ylabel: str, bands: Bands | None, colors: dict[str, str]) -> None:
     for name, pts in series.items():
         xs, ys = zip(*pts, strict=True) if pts else ((), ())
-        (line,) = ax.plot(xs, ys, label=name, linewidth=1.6)
+        ax.plot(xs, ys, label=name, linewidth=1.6, color=colors[name])
         if bands and name in bands and bands[name]:
             bx, lo, hi = zip(*bands[name], strict=True)
-            ax.fill_between(bx, lo, hi, alpha=0.2, color=line.get_color())
+            ax.fill_between(bx, lo, hi, alpha=0.2, color=colors[name])
     ax.set_title(title, fontsize=10)
     ax.set_xlabel("environment steps")
     ax.set_ylabel(ylabel)
@@ -58,13 +69,16 @@ def _draw(ax, series: Series, title: str, ylabel: str, bands: Bands | None) -> N
     ax.legend(fontsize=8)
 
 
-def png_plot(series: Series, path: Path, title: str, ylabel: str, bands: Bands | None = None) -> Path:
+def png_plot(series: Series, path: Path, title: str, ylabel: str, bands: Bands | None = None,
+             order: list[str] = ()) -> Path:
     """Line plot of series (and optional mean ± std bands as (x, lo, hi)) written atomically to a PNG."""
-    return png_panels([(series, title, bands)], path, ylabel)
+    return png_panels([(series, title, bands)], path, ylabel, order=order)
 
 
-def png_panels(panels: list[tuple[Series, str, Bands | None]], path: Path, ylabel: str, columns: int = 3) -> Path:
-    """One panel per (series, title, bands), `columns` to a row, in one PNG (a study's summary figure)."""
+def png_panels(panels: list[tuple[Series, str, Bands | None]], path: Path, ylabel: str, columns: int = 3,
+               order: list[str] = ()) -> Path:
+    """One panel per (series, title, bands), `columns` to a row, in one PNG (a study's summary figure); series
+    colours by name, `order` first (see series_colors)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -74,8 +88,10 @@ def png_panels(panels: list[tuple[Series, str, Bands | None]], path: Path, ylabe
     rows = -(-len(panels) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(7 * cols if cols == 1 else 5 * cols, 4.2 * rows), dpi=110,
                              squeeze=False)
+    colors = series_colors([series for series, _, _ in panels], plt.rcParams["axes.prop_cycle"].by_key()["color"],
+                           order)
     for ax, (series, title, bands) in zip(axes.flat, panels, strict=False):
-        _draw(ax, series, title, ylabel, bands)
+        _draw(ax, series, title, ylabel, bands, colors)
     for ax in list(axes.flat)[len(panels):]:
         ax.set_visible(False)
     fig.tight_layout()

@@ -165,6 +165,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
     summary: dict[str, Any] = {}
     comparisons: dict[str, list[dict[str, Any]]] = {}
     panels = []
+    method_order = [m.name for m in g.methods]  # each method keeps its colour in every figure
     left_out: list[str] = []
     for pair in g.pairs:
         data = {m.name: completed_curves(grid, run_of, pair, m, left_out) for m in g.methods}
@@ -235,7 +236,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
         slug = file_slug(pair.name)
         if series:
             panels.append((series, pair.name, bands))
-            png_plot(series, out_dir / f"curves-{slug}.png", pair.name, "mean episode return", bands)
+            png_plot(series, out_dir / f"curves-{slug}.png", pair.name, "mean episode return", bands, method_order)
             lines += ["", f"![learning curves]({f'curves-{slug}.png'})"]
         if weight_series:
             png_plot(weight_series, out_dir / f"weights-{slug}.png", f"{pair.name}: student weights",
@@ -243,7 +244,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
             lines += ["", f"![student weights]({f'weights-{slug}.png'})"]
         lines.append("")
     if len(panels) > 1:  # every pair at a glance: the figure for a README
-        png_panels(panels, out_dir / "summary.png", "mean episode return")
+        png_panels(panels, out_dir / "summary.png", "mean episode return", order=method_order)
         lines[2:2] = ["![every pair](summary.png)", ""]
     if left_out:  # said at the top: these runs finished but their numbers are in no table above
         lines[2:2] = ["**Completed runs left out** (their files are incomplete; restore them from a snapshot or "

@@ -1,0 +1,27 @@
+"""Plot helpers: colours stay with a series name across the panels of one figure."""
+
+from miktcli.plots import png_panels, series_colors
+
+
+def test_a_name_keeps_its_colour_in_every_panel():
+    palette = ["c0", "c1", "c2"]
+    panels = [{"mikt": [], "vpg": [], "mlpp": []}, {"vpg": []}, {"mlpp": [], "mikt": []}]
+    colors = series_colors(panels, palette)
+    assert colors == {"mikt": "c0", "vpg": "c1", "mlpp": "c2"}
+
+
+def test_more_names_than_colours_wrap_around():
+    colors = series_colors([{"a": [], "b": [], "c": []}], ["x", "y"])
+    assert colors == {"a": "x", "b": "y", "c": "x"}
+
+
+def test_summary_figure_with_a_panel_lacking_the_first_method(tmp_path):
+    curve = [(0.0, 1.0), (1.0, 2.0)]
+    out = png_panels([({"mikt": curve, "vpg": curve}, "pair one", {"vpg": [(0.0, 0.5, 1.5), (1.0, 1.5, 2.5)]}),
+                      ({"vpg": curve}, "pair two", None)], tmp_path / "summary.png", "return")
+    assert out.read_bytes().startswith(b"\x89PNG")
+
+
+def test_the_given_order_comes_first_even_when_a_panel_lacks_it():
+    colors = series_colors([{"vpg": []}], ["c0", "c1", "c2"], order=["mikt", "vpg", "mlpp"])
+    assert colors["vpg"] == "c1"
