@@ -32,7 +32,8 @@ trap 'kill $SNAPSHOTS 2>/dev/null' EXIT
 for grid in paper-2m paper-2m-controls paper-2m-ablations paper-2m-similarity; do
   mikt study "$ROOT/benchmarks/grids/$grid.toml" --out "$RESULTS/$grid" "${PARALLEL[@]}"
 done
-# The evidence to commit: each finished run's card and metrics beside its study's report, and the
-# teacher-similarity figures (which read those snapshots).
+# The evidence to commit: each finished run's card and metrics beside its study's report, the
+# teacher-similarity figures and the controls/ablations report (both read those snapshots).
 snapshot_all
 python "$ROOT/benchmarks/similarity_report.py" "$RESULTS"
+python "$ROOT/benchmarks/controls_report.py" "$RESULTS"

@@ -13,6 +13,8 @@ BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
 def load_script(name: str):
+    if str(BENCHMARKS) not in sys.path:  # as when run as `python benchmarks/NAME.py`: its helpers import
+        sys.path.insert(0, str(BENCHMARKS))
     spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -56,6 +58,53 @@ def test_similarity_report_puts_every_teacher_of_the_target_on_the_same_seeds(re
     assert rows["mikt ← far"] == "| mikt ← far | 1 | 1 | 1 | 1 | 5 | 0.50 / 0.25 |"
     assert rows["vpg"].startswith("| vpg | 1 | 0 | 1 |") and rows["vpg"].endswith("| 10 | — |")
     assert (path.parent / "similarity-curves.png").exists() and (path.parent / "similarity-weights.png").exists()
+
+
+def test_controls_report_puts_the_main_grids_runs_beside_the_controls_on_common_seeds(registry, tmp_path):
+    grids, results = tmp_path / "grids", tmp_path / "results"
+    grids.mkdir()
+    pairs = '[[pairs]]\nfrom = ["four"]\nto = "hopper"\n'
+    (grids / "main.toml").write_text(GRID.format(
+        name="main", seeds="[0, 1, 2]", baseline="vpg", extra='[[methods]]\nname = "vpg"\nmethod = "vpg"\n',
+        pairs=pairs + '[[pairs]]\nfrom = ["six"]\nto = "hopper"\n'))
+    (grids / "ctl.toml").write_text('name = "ctl"\nsteps = 6144\nseeds = [0, 1]\nmarks = [4096, 6144]\n'
+                                    'baseline = "vpg + KL"\n' + pairs
+                                    + '[[methods]]\nname = "vpg + KL"\nmethod = "vpg"\nkl_coef = 0.05\n')
+    (grids / "abl.toml").write_text('name = "abl"\nsteps = 6144\nseeds = [0, 1, 2]\nmarks = [4096, 6144]\n'
+                                    'baseline = "mikt w/o MI"\n' + pairs
+                                    + '[[methods]]\nname = "mikt w/o MI"\nmethod = "mikt"\nmikt = { mi = false }\n')
+    mix = {"p_pi_0": 1.0, "p_vf_0": 1.0}
+    cells = {
+        "main": {"four>hopper|mikt|0": fake_run(registry, "hopper", "mikt", 0, [1, 2, 9], 30, mix),
+                 "four>hopper|mikt|1": fake_run(registry, "hopper", "mikt", 1, [3, 4, 11], 50, mix),
+                 "four>hopper|mikt|2": fake_run(registry, "hopper", "mikt", 2, [99, 99, 99], 999, mix),  # seed 2
+                 "six>hopper|mikt|0": fake_run(registry, "hopper", "mikt", 0, [50, 50, 50], 50, mix),  # other pair
+                 "->hopper|vpg|0": fake_run(registry, "hopper", "vpg", 0, [0, 0, 1], 10),
+                 "->hopper|vpg|1": fake_run(registry, "hopper", "vpg", 1, [0, 0, 3], 20)},
+        "ctl": {"->hopper|vpg + KL|0": fake_run(registry, "hopper", "vpg", 0, [0, 1, 2], 12)},
+        "abl": {},  # not started: its curve has n = 0
+    }
+    for study, runs in cells.items():
+        (results / study).mkdir(parents=True)
+        (results / study / "state.json").write_text(json.dumps(runs))
+        for run_id in runs.values():
+            shutil.copytree(registry / "runs" / run_id, results / study / "runs" / run_id)
+    shutil.rmtree(registry)
+
+    path = load_script("controls_report").controls_report(results, "main", ["ctl", "abl"], grids=grids)
+    text = path.read_text()
+    assert "## four → hopper (seeds [0, 1])" in text and "six" not in text  # seeds both control grids have
+    rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines()
+            if line.startswith("| ") and not line.startswith(("| curve", "| A vs B"))}
+    assert rows["mikt"] == "| mikt | 2 | 3 ± 1 | 10 ± 1 | 5 ± 1 | 40 ± 14 | 1.00 / 1.00 |"
+    assert rows["vpg"] == "| vpg | 2 | 0 ± 0 | 2 ± 1 | 1 ± 0 | 15 ± 7 | — |"
+    assert rows["vpg + KL"] == "| vpg + KL | 1 | 1 | 2 | 1 | 12 | — |"
+    assert rows["mikt w/o MI"].startswith("| mikt w/o MI | 0 | — |")
+    # over seeds: 2 against 2 can be compared, 2 against 1 cannot
+    compared = [line for line in text.splitlines() if line.startswith("| mikt vs vpg |")]
+    assert compared[0] == "| mikt vs vpg | 2 / 2 | final return | +8 | 1.00 | 0.333 | 0.333 |" and len(compared) == 3
+    assert "vs vpg + KL" not in text
+    assert (results / "controls-four-to-hopper.png").exists()
 
 
 def test_snapshots_restore_into_a_fresh_registry_so_the_study_skips_finished_cells(registry, tmp_path):
