@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from cross_study import Group, curves_of, header, method_named, snapshot_runs
+from cross_study import Group, curves_of, method_named, snapshot_runs, table_head
 
 from miktcli.plots import png_plot
 from miktcli.registry.files import write_text_atomic
@@ -73,12 +73,10 @@ def controls_report(root: Path, main_name: str, others: list[str], method_name: 
             raise SystemExit(f"{pair.name}: the grids run {sorted(steps | {main.steps})} steps; the curves would not "
                              "be comparable")
         seeds = sorted(set.intersection(*seed_sets))
-        columns = header(marks)
         found = curves_of(groups, seeds, marks)
         left_out += [problem for problem in found.left_out if problem not in left_out]
         slug = file_slug(pair.name)
-        lines += [f"## {pair.name} (seeds {seeds})", "", "| " + " | ".join(columns) + " |",
-                  "|" + "---|" * len(columns), *found.rows]
+        lines += [f"## {pair.name} (seeds {seeds})", "", *table_head(marks), *found.rows]
         compared, _ = comparison_table(found.per_seed)
         lines += compared
         if found.series:

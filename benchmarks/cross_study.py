@@ -67,16 +67,22 @@ class Curves:
     left_out: list[str] = field(default_factory=list)
 
 
-def header(marks: list[int]) -> list[str]:
+def columns(marks: list[int]) -> list[str]:
     return ["curve", "n", *(f"{m:,}" for m in marks), "mean over training", "final eval (no teacher)",
             "final p (π / V)"]
+
+
+def table_head(marks: list[int]) -> list[str]:
+    """The markdown header and rule of the table that `curves_of` fills."""
+    names = columns(marks)
+    return ["| " + " | ".join(names) + " |", "|" + "---|" * len(names)]
 
 
 def curves_of(groups: list[Group], seeds: list[int], marks: list[int]) -> Curves:
     """Each group's completed runs on `seeds` only (so every curve averages the same seeds): mean ± sample std
     at each mark (the last iteration at or before it), over training, and of the teacher-free eval."""
     out = Curves()
-    width = len(header(marks)) - 2
+    width = len(columns(marks)) - 2
     for g in groups:
         runs, steps, curves = completed_curves(g.grid.model_copy(update={"seeds": seeds}), g.run_of, g.pair,
                                                g.method, out.left_out)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from cross_study import Group, curves_of, header, method_named, snapshot_runs, teachers_of
+from cross_study import Group, curves_of, method_named, snapshot_runs, table_head, teachers_of
 
 from miktcli.plots import png_plot
 from miktcli.registry.files import write_text_atomic
@@ -48,14 +48,13 @@ def similarity_report(root: Path, main_name: str, similarity_name: str, method_n
         groups.append(Group(main.baseline, main, main_runs, baseline_pair, method_named(main, main.baseline)))
 
     marks = [m for m in similar.marks if m <= similar.steps] or [similar.steps]
-    columns = header(marks)
     lines = [f"# Teacher similarity on {target}", "",
              f"MIKT ({method_name}) on {target} taught by each teacher, and {main.baseline} (from scratch); seeds "
              f"{seeds} for every curve, {similar.steps:,} steps. Mean training return over the last 100 episodes at "
              "each mark (the last iteration at or before it), mean ± sample std (ddof 1) over the n finished seeds. "
              f"Runs from `{main_name}` and `{similarity_name}` (see their results.md for the run ids).", "",
              "![curves](similarity-curves.png)", "", "![student weights](similarity-weights.png)", "",
-             "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+             *table_head(marks)]
     found = curves_of(groups, seeds, marks)
     lines += found.rows
     series, bands, weights, left_out = found.series, found.bands, found.weights, found.left_out

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 from miktcli.outfiles import atomic_output
@@ -44,7 +45,7 @@ Series = dict[str, list[tuple[float, float]]]
 Bands = dict[str, list[tuple[float, float, float]]]
 
 
-def series_colors(panels: list[Series], palette: list[str], order: list[str] = ()) -> dict[str, str]:
+def series_colors(panels: list[Series], palette: list[str], order: Sequence[str] = ()) -> dict[str, str]:
     """One colour per series name across every panel: the names in `order` first, then the others as they first
     appear. A study passes its methods, so vpg has one colour in every figure of the report, including a pair
     that has no mikt curve yet (or a summary panel that never will)."""
@@ -70,13 +71,13 @@ def _draw(ax, series: Series, title: str, ylabel: str, bands: Bands | None, colo
 
 
 def png_plot(series: Series, path: Path, title: str, ylabel: str, bands: Bands | None = None,
-             order: list[str] = ()) -> Path:
+             order: Sequence[str] = ()) -> Path:
     """Line plot of series (and optional mean ± std bands as (x, lo, hi)) written atomically to a PNG."""
     return png_panels([(series, title, bands)], path, ylabel, order=order)
 
 
 def png_panels(panels: list[tuple[Series, str, Bands | None]], path: Path, ylabel: str, columns: int = 3,
-               order: list[str] = ()) -> Path:
+               order: Sequence[str] = ()) -> Path:
     """One panel per (series, title, bands), `columns` to a row, in one PNG (a study's summary figure); series
     colours by name, `order` first (see series_colors)."""
     import matplotlib
