@@ -144,6 +144,21 @@ def test_completed_runs_with_incomplete_files_are_left_out_and_named(registry, t
     assert study.report().left_out[0] == f"{ids[1]}: metrics.jsonl is empty, the run trained 6,144"
 
 
+def test_a_pair_without_finished_runs_names_the_same_mark_columns(registry, tmp_path):
+    from miktcli.workflows.grid import Grid
+    from miktcli.workflows.study import Study
+
+    grid = Grid.model_validate({"name": "g", "steps": 6144, "seeds": [0], "marks": [4000, 6144],
+                                "methods": [{"name": "vpg", "method": "vpg"}],
+                                "pairs": [{"from": ["x"], "to": "hopper"}, {"from": ["y"], "to": "ant"}]})
+    study = Study(grid, tmp_path / "out", registry)
+    study._remember("->hopper|vpg|0", fake_run(registry, "hopper", "vpg", 0, [10, 20, 30], 5))
+    study.report()
+    table = (tmp_path / "out" / "results.md").read_text()
+    # 4000 is logged at 2048 (the last iteration at or before it): the empty ant table says so too
+    assert table.count("| method | n | 2,048 | 6,144 |") == 2 and "4,000" not in table
+
+
 def test_grids_with_duplicate_methods_or_pairs_are_refused(tmp_path):
     from miktcli.errors import MiktError
     from miktcli.workflows.grid import load_grid

@@ -167,12 +167,17 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
     panels = []
     method_order = [m.name for m in g.methods]  # each method keeps its colour in every figure
     left_out: list[str] = []
+    data_of = {pair.name: {m.name: completed_curves(grid, run_of, pair, m, left_out) for m in g.methods}
+               for pair in g.pairs}
+    # Every run of a grid logs at the same iteration boundaries, so a pair with no finished run yet labels its
+    # marks with another pair's logged steps: all tables then name the same columns.
+    grid_steps = next((steps for data in data_of.values() for runs, steps, _ in data.values() if runs), None)
     for pair in g.pairs:
-        data = {m.name: completed_curves(grid, run_of, pair, m, left_out) for m in g.methods}
+        data = data_of[pair.name]
         base_runs, base_steps, base_curves = data[g.baseline]
         base_final = float(np.nanmean(base_curves[:, -1])) if len(base_runs) else None
         marks = g.marks or [g.steps]  # the grid keeps them within 1…steps
-        any_steps = next((steps for runs, steps, _ in data.values() if runs), None)
+        any_steps = next((steps for runs, steps, _ in data.values() if runs), grid_steps)
         mark_index = {}
         for mark in marks:
             i = int(np.searchsorted(any_steps, mark, side="right")) - 1 if any_steps is not None else -1
