@@ -159,6 +159,23 @@ def test_a_pair_without_finished_runs_names_the_same_mark_columns(registry, tmp_
     assert table.count("| method | n | 2,048 | 6,144 |") == 2 and "4,000" not in table
 
 
+def test_any_method_without_teachers_is_shared_per_target(monkeypatch, registry, tmp_path):
+    import dataclasses
+
+    from miktcli.methods import METHODS
+    from miktcli.methods.vpg import METHOD as VPG
+    from miktcli.workflows.grid import Grid, cell_key
+    from miktcli.workflows.study import Study
+
+    # a new from-scratch method is known by its Method record (max_teachers = 0), not by its name
+    monkeypatch.setitem(METHODS, "scratch", dataclasses.replace(VPG, name="scratch"))
+    grid = Grid.model_validate({"name": "g", "steps": 2048, "seeds": [0], "baseline": "s",
+                                "methods": [{"name": "s", "method": "scratch"}, {"name": "m", "method": "mlpp"}],
+                                "pairs": [{"from": ["a"], "to": "hopper"}, {"from": ["b"], "to": "hopper"}]})
+    assert [cell_key(*cell) for cell in Study(grid, tmp_path / "out", registry).distinct_cells()] == [
+        "->hopper|s|0", "a>hopper|m|0", "b>hopper|m|0"]
+
+
 def test_grids_with_duplicate_methods_or_pairs_are_refused(tmp_path):
     from miktcli.errors import MiktError
     from miktcli.workflows.grid import load_grid

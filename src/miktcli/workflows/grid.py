@@ -9,7 +9,7 @@ from typing import Annotated, Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from miktcli.errors import MiktError, describe_validation_error
-from miktcli.methods import transfer_methods
+from miktcli.methods import get_method, transfer_methods
 
 
 class PairSpec(BaseModel):
@@ -30,7 +30,8 @@ class MethodSpec(BaseModel):
     name: str
     method: str
     kl_coef: float | None = Field(None, ge=0, allow_inf_nan=False)
-    # the method's options; grids write them under the method's name (`mikt = { mi = false }`)
+    # the method's options; grids write them under the key `mikt` whatever the method (`mikt = { mi = false }`):
+    # mikt is the only method with options so far, and the key is part of every committed grid
     options: dict[str, Any] = Field(default_factory=dict, alias="mikt")
 
     @field_validator("method")
@@ -42,7 +43,9 @@ class MethodSpec(BaseModel):
 
     @property
     def uses_teachers(self) -> bool:
-        return self.method != "vpg"
+        # a method that takes no teachers trains from scratch: its cell is one run shared by every pair with
+        # the same target, and it is given no teachers
+        return get_method(self.method).max_teachers != 0
 
 
 def file_slug(text: str) -> str:
