@@ -40,10 +40,15 @@ class Method:
             return None
         return self.options.model_validate(values or {})
 
+    @property
+    def trains_from_scratch(self) -> bool:
+        """Takes no teachers: a study runs it once per target and seed, shared by every pair."""
+        return self.max_teachers == 0
+
     def check_teacher_count(self, n: int) -> None:
         if n < self.min_teachers:
             raise MiktError(f"method {self.name} needs a teacher")
         if self.max_teachers is not None and n > self.max_teachers:
-            raise MiktError(f"method {self.name} trains from scratch: it takes no teachers" if self.max_teachers == 0
+            raise MiktError(f"method {self.name} trains from scratch: it takes no teachers" if self.trains_from_scratch
                             else f"method {self.name} takes at most {self.max_teachers} teacher(s), got {n}")
 

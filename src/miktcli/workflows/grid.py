@@ -43,9 +43,7 @@ class MethodSpec(BaseModel):
 
     @property
     def uses_teachers(self) -> bool:
-        # a method that takes no teachers trains from scratch: its cell is one run shared by every pair with
-        # the same target, and it is given no teachers
-        return get_method(self.method).max_teachers != 0
+        return not get_method(self.method).trains_from_scratch
 
 
 def file_slug(text: str) -> str:
