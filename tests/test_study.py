@@ -251,3 +251,15 @@ def test_the_ray_progress_overview_counts_cells_and_estimates_the_end():
     assert _overview(cells, finished_before=3) == (
         "4/8 cells completed, 2 training, 1 failed; 260 steps to go, about 0:00:26 at the current 10 steps/s")
     assert _overview(cells[:1], finished_before=0) == "1/1 cells completed, 0 training; 0 steps to go"
+
+
+def test_an_unknown_target_env_is_an_error_even_for_report_only(registry, tmp_path):
+    """A misspelt target trains nothing; reporting its pair as merely unfinished would hide the typo."""
+    grid = tmp_path / "g.toml"
+    grid.write_text('name = "x"\nsteps = 2048\nseeds = [0]\n[[pairs]]\nfrom = ["t"]\nto = "centipede-nine"\n'
+                    '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+    for args in (["--report-only"], []):
+        r = runner.invoke(app, ["study", str(grid), "--out", str(tmp_path / "o"), *args])
+        assert r.exit_code == 1, r.output
+        assert "pair t → centipede-nine: unknown environment 'centipede-nine'" in r.output
+    assert not (tmp_path / "o").exists() and not (registry / "runs").exists()

@@ -105,7 +105,7 @@ def study(
     grid = load_grid(grid_file)
     st = Study(grid, out or Path("benchmarks/results") / grid.name, registry)
     if report_only:
-        pass
+        st.check_envs()  # the other branches check it before any cell is created
     elif workers is None and address is None:  # embedded: serial, in this process, no Ray
         total = len(st.distinct_cells())
         done = 0

@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+from miktcli.envs.spec import load_spec
 from miktcli.errors import MiktError
 from miktcli.registry.cards import TeacherRef
 from miktcli.registry.files import write_text_atomic
@@ -89,6 +90,15 @@ class Study:
             seen.setdefault(cell_key(*cell), cell)
         return list(seen.values())
 
+    def check_envs(self) -> None:
+        """Every target the grid names must be a known environment: a misspelt one would otherwise train
+        nothing and report an empty pair as if its cells were merely unfinished."""
+        for pair in self.grid.pairs:
+            try:
+                load_spec(pair.to)
+            except MiktError as err:
+                raise MiktError(f"grid '{self.grid.name}', pair {pair.name}: {err}", hint=err.hint) from err
+
     def check_teachers(self) -> None:
         """Every teacher the grid names must exist before the first cell trains."""
         for pair in self.grid.pairs:
@@ -124,6 +134,7 @@ class Study:
 
         Runs that state.json names but the registry lacks are refused unless `retrain_missing`: the usual
         cause is the wrong registry, where retraining would re-point state.json away from the real runs."""
+        self.check_envs()
         self.check_teachers()
         self.out_dir.mkdir(parents=True, exist_ok=True)
         if not os.access(self.out_dir, os.W_OK):  # before any run exists: else each try leaves one behind
