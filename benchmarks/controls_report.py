@@ -20,7 +20,7 @@ from cross_study import Group, curves_of, method_named, snapshot_runs, table_hea
 from miktcli.plots import png_plot
 from miktcli.registry.files import write_text_atomic
 from miktcli.workflows.grid import Grid, PairSpec, file_slug, load_grid
-from miktcli.workflows.report import comparison_table
+from miktcli.workflows.report import comparison_table, partial_seed_labels
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -81,7 +81,7 @@ def controls_report(root: Path, main_name: str, others: list[str], method_name: 
         lines += compared
         if found.series:
             png_plot(found.series, root / f"controls-{slug}.png", pair.name, "mean episode return", found.bands,
-                     order=labels)
+                     order=labels, labels=partial_seed_labels(found.counts, len(seeds)))
             lines += ["", f"![learning curves](controls-{slug}.png)"]
         lines.append("")
     if left_out:

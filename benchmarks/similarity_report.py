@@ -21,6 +21,7 @@ from cross_study import Group, curves_of, method_named, snapshot_runs, table_hea
 from miktcli.plots import png_plot
 from miktcli.registry.files import write_text_atomic
 from miktcli.workflows.grid import load_grid
+from miktcli.workflows.report import partial_seed_labels
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -61,7 +62,8 @@ def similarity_report(root: Path, main_name: str, similarity_name: str, method_n
     out = root / similarity_name
     out.mkdir(parents=True, exist_ok=True)
     if series:
-        png_plot(series, out / "similarity-curves.png", f"teachers of {target}", "mean episode return", bands)
+        png_plot(series, out / "similarity-curves.png", f"teachers of {target}", "mean episode return", bands,
+                 labels=partial_seed_labels(found.counts, len(seeds)))
     if weights:
         png_plot(weights, out / "similarity-weights.png", f"{target}: student weight p (policy)", "p (student)")
     if left_out:

@@ -25,3 +25,29 @@ def test_summary_figure_with_a_panel_lacking_the_first_method(tmp_path):
 def test_the_given_order_comes_first_even_when_a_panel_lacks_it():
     colors = series_colors([{"vpg": []}], ["c0", "c1", "c2"], order=["mikt", "vpg", "mlpp"])
     assert colors["vpg"] == "c1"
+
+
+def test_a_legend_can_say_more_than_the_name_while_the_colour_stays_the_names():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from miktcli.plots import _draw
+
+    curve = [(0.0, 1.0), (1.0, 2.0)]
+    fig, ax = plt.subplots()
+    try:
+        _draw(ax, {"mikt": curve, "mlpp": curve}, "pair", "return", None, {"mikt": "C0", "mlpp": "C1"},
+              {"mlpp": "mlpp (1 of 5 seeds)"})
+        assert [t.get_text() for t in ax.get_legend().get_texts()] == ["mikt", "mlpp (1 of 5 seeds)"]
+        assert [line.get_color() for line in ax.lines] == ["C0", "C1"]
+    finally:
+        plt.close(fig)
+
+
+def test_only_curves_of_fewer_seeds_than_the_grid_are_labelled_with_their_count():
+    from miktcli.workflows.report import partial_seed_labels
+
+    assert partial_seed_labels({"mikt": 5, "vpg": 5, "mlpp": 1}, 5) == {"mlpp": "mlpp (1 of 5 seeds)"}
+    assert partial_seed_labels({"mikt": 1}, 1) == {}

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from miktcli.outfiles import atomic_output
@@ -56,10 +56,12 @@ def series_colors(panels: list[Series], palette: list[str], order: Sequence[str]
     return colors
 
 
-def _draw(ax, series: Series, title: str, ylabel: str, bands: Bands | None, colors: dict[str, str]) -> None:
+def _draw(ax, series: Series, title: str, ylabel: str, bands: Bands | None, colors: dict[str, str],
+          labels: Mapping[str, str] | None = None) -> None:
     for name, pts in series.items():
         xs, ys = zip(*pts, strict=True) if pts else ((), ())
-        ax.plot(xs, ys, label=name, linewidth=1.6, color=colors[name])
+        # the legend may say more than the name (a curve of fewer seeds than the others); the colour stays the name's
+        ax.plot(xs, ys, label=(labels or {}).get(name, name), linewidth=1.6, color=colors[name])
         if bands and name in bands and bands[name]:
             bx, lo, hi = zip(*bands[name], strict=True)
             ax.fill_between(bx, lo, hi, alpha=0.2, color=colors[name])
@@ -71,15 +73,16 @@ def _draw(ax, series: Series, title: str, ylabel: str, bands: Bands | None, colo
 
 
 def png_plot(series: Series, path: Path, title: str, ylabel: str, bands: Bands | None = None,
-             order: Sequence[str] = ()) -> Path:
-    """Line plot of series (and optional mean ± std bands as (x, lo, hi)) written atomically to a PNG."""
-    return png_panels([(series, title, bands)], path, ylabel, order=order)
+             order: Sequence[str] = (), labels: Mapping[str, str] | None = None) -> Path:
+    """Line plot of series (and optional mean ± std bands as (x, lo, hi)) written atomically to a PNG;
+    `labels` gives a series a legend text other than its name."""
+    return png_panels([(series, title, bands)], path, ylabel, order=order, labels=[labels])
 
 
 def png_panels(panels: list[tuple[Series, str, Bands | None]], path: Path, ylabel: str, columns: int = 3,
-               order: Sequence[str] = ()) -> Path:
+               order: Sequence[str] = (), labels: Sequence[Mapping[str, str] | None] = ()) -> Path:
     """One panel per (series, title, bands), `columns` to a row, in one PNG (a study's summary figure); series
-    colours by name, `order` first (see series_colors)."""
+    colours by name, `order` first (see series_colors); `labels`, one mapping per panel, their legend texts."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -91,8 +94,9 @@ def png_panels(panels: list[tuple[Series, str, Bands | None]], path: Path, ylabe
                              squeeze=False)
     colors = series_colors([series for series, _, _ in panels], plt.rcParams["axes.prop_cycle"].by_key()["color"],
                            order)
-    for ax, (series, title, bands) in zip(axes.flat, panels, strict=False):
-        _draw(ax, series, title, ylabel, bands, colors)
+    panel_labels = [*labels, *[None] * (len(panels) - len(labels))]
+    for ax, (series, title, bands), names in zip(axes.flat, panels, panel_labels, strict=False):
+        _draw(ax, series, title, ylabel, bands, colors, names)
     for ax in list(axes.flat)[len(panels):]:
         ax.set_visible(False)
     fig.tight_layout()

@@ -91,6 +91,13 @@ def completed_curves(grid: Grid, run_of: RunOf, pair: PairSpec, method: MethodSp
     return runs, steps, np.array([[v for _, v in c[:length]] for c in curves])
 
 
+def partial_seed_labels(counts: dict[str, int], seeds: int) -> dict[str, str]:
+    """Legend texts for the curves that average fewer seeds than the grid runs, so that a figure of a study
+    under way cannot be read as a finished one (one seed also has no band)."""
+    return {name: f"{name} ({n} of {seeds} seeds)" for name, n in counts.items()
+            if n < seeds}
+
+
 def comparison_table(per_seed: PerSeed) -> tuple[list[str], list[dict[str, Any]]]:
     """Every method against every later one (grid order), on each per-seed measure: markdown lines and the
     same rows for comparisons.json. A side with fewer than two values is left out (nothing to test)."""
@@ -164,7 +171,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
              ""]
     summary: dict[str, Any] = {}
     comparisons: dict[str, list[dict[str, Any]]] = {}
-    panels = []
+    panels, panel_labels = [], []
     method_order = [m.name for m in g.methods]  # each method keeps its colour in every figure
     left_out: list[str] = []
     data_of = {pair.name: {m.name: completed_curves(grid, run_of, pair, m, left_out) for m in g.methods}
@@ -240,8 +247,11 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
         lines += compared
         slug = file_slug(pair.name)
         if series:
+            labels = partial_seed_labels({name: len(data[name][0]) for name in series}, len(g.seeds))
             panels.append((series, pair.name, bands))
-            png_plot(series, out_dir / f"curves-{slug}.png", pair.name, "mean episode return", bands, method_order)
+            panel_labels.append(labels)
+            png_plot(series, out_dir / f"curves-{slug}.png", pair.name, "mean episode return", bands, method_order,
+                     labels)
             lines += ["", f"![learning curves]({f'curves-{slug}.png'})"]
         if weight_series:
             png_plot(weight_series, out_dir / f"weights-{slug}.png", f"{pair.name}: student weights",
@@ -249,7 +259,8 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
             lines += ["", f"![student weights]({f'weights-{slug}.png'})"]
         lines.append("")
     if len(panels) > 1:  # every pair at a glance: the figure for a README
-        png_panels(panels, out_dir / "summary.png", "mean episode return", order=method_order)
+        png_panels(panels, out_dir / "summary.png", "mean episode return", order=method_order,
+                   labels=panel_labels)
         lines[2:2] = ["![every pair](summary.png)", ""]
     if left_out:  # said at the top: these runs finished but their numbers are in no table above
         lines[2:2] = ["**Completed runs left out** (their files are incomplete; restore them from a snapshot or "
