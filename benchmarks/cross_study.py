@@ -64,8 +64,12 @@ class Curves:
     bands: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict)
     weights: dict[str, list[tuple[float, float]]] = field(default_factory=dict)  # mean p_pi_0 per group
     per_seed: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # for comparison_table
-    counts: dict[str, int] = field(default_factory=dict)  # finished seeds per group with a curve
     left_out: list[str] = field(default_factory=list)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Finished seeds per group with a curve (each has one per-seed value per run)."""
+        return {label: len(measures["final return"]) for label, measures in self.per_seed.items()}
 
 
 def columns(marks: list[int]) -> list[str]:
@@ -90,7 +94,6 @@ def curves_of(groups: list[Group], seeds: list[int], marks: list[int]) -> Curves
         if not runs:
             out.rows.append(f"| {g.label} | 0 | " + " | ".join("—" for _ in range(width)) + " |")
             continue
-        out.counts[g.label] = len(runs)
         mean, std = np.nanmean(curves, 0), np.nan_to_num(sample_std(curves, axis=0))
         at = [int(np.searchsorted(steps, m, side="right")) - 1 for m in marks]
         cells = ["—" if i < 0 else mean_pm_std(curves[:, i]) for i in at]
