@@ -71,6 +71,16 @@ class Curves:
         """Finished seeds per group with a curve (each has one per-seed value per run)."""
         return {label: len(measures["final return"]) for label, measures in self.per_seed.items()}
 
+    @property
+    def weight_counts(self) -> dict[str, int]:
+        """The same counts keyed by each group's student-weight curve (a group without mixing draws none)."""
+        return {weight_label(label): n for label, n in self.counts.items() if weight_label(label) in self.weights}
+
+
+def weight_label(group: str) -> str:
+    """The legend name of a group's mean student-weight curve (the policy's weight, p_pi_0)."""
+    return f"{group} (π)"
+
 
 def columns(marks: list[int]) -> list[str]:
     return ["curve", "n", *(f"{m:,}" for m in marks), "mean over training", "final eval (no teacher)",
@@ -106,7 +116,7 @@ def curves_of(groups: list[Group], seeds: list[int], marks: list[int]) -> Curves
             # averaged at the steps every run logged (a damaged metrics line drops a step, never shifts one)
             by_step = [{row["steps"]: row.get("p_pi_0") for row in r.read_metrics()} for r in runs]
             common = sorted(set.intersection(*(set(b) for b in by_step)))
-            out.weights[f"{g.label} (π)"] = [(step, float(np.mean([b[step] for b in by_step]))) for step in common
+            out.weights[weight_label(g.label)] = [(step, float(np.mean([b[step] for b in by_step]))) for step in common
                                             if all(b[step] is not None for b in by_step)]
         out.rows.append(f"| {g.label} | {len(runs)} | " + " | ".join(cells)
                         + f" | {mean_pm_std(auc)} | {mean_pm_std(evals)} | {p} |")

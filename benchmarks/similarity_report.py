@@ -65,7 +65,8 @@ def similarity_report(root: Path, main_name: str, similarity_name: str, method_n
         png_plot(series, out / "similarity-curves.png", f"teachers of {target}", "mean episode return", bands,
                  labels=partial_seed_labels(found.counts, len(seeds)))
     if weights:
-        png_plot(weights, out / "similarity-weights.png", f"{target}: student weight p (policy)", "p (student)")
+        png_plot(weights, out / "similarity-weights.png", f"{target}: student weight p (policy)", "p (student)",
+                 labels=partial_seed_labels(found.weight_counts, len(seeds)))
     if left_out:
         lines += ["", "Completed runs left out (incomplete files):", "", *(f"- {problem}" for problem in left_out)]
     lines.append("")

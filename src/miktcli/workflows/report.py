@@ -195,6 +195,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
                   "final student weights p (π / V)"]
         lines += [f"## {pair.name}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
         series, bands, weight_series = {}, {}, {}
+        weight_counts: dict[str, int] = {}  # runs behind each student-weight curve, for its legend
         per_seed: PerSeed = {}
         summary[pair.name] = {}
         for method in g.methods:
@@ -224,6 +225,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
                 for k in keys:
                     weight_series[f"{method.name} {k}"] = [
                         (rows[0][i]["steps"], float(np.mean([r[i][k] for r in rows]))) for i in range(n)]
+                    weight_counts[f"{method.name} {k}"] = len(runs)
             # Area under the curve per step: how much return the whole run collected, jump-start included.
             auc = np.nanmean(curves, axis=1)
             per_seed[method.name] = {"final return": curves[:, -1],
@@ -255,7 +257,7 @@ def write_report(grid: Grid, out_dir: Path, cell_runs: dict[str, str], run_of: R
             lines += ["", f"![learning curves]({f'curves-{slug}.png'})"]
         if weight_series:
             png_plot(weight_series, out_dir / f"weights-{slug}.png", f"{pair.name}: student weights",
-                     "p (student)")
+                     "p (student)", labels=partial_seed_labels(weight_counts, len(g.seeds)))
             lines += ["", f"![student weights]({f'weights-{slug}.png'})"]
         lines.append("")
     if len(panels) > 1:  # every pair at a glance: the figure for a README
