@@ -116,8 +116,8 @@ def curves_of(groups: list[Group], seeds: list[int], marks: list[int]) -> Curves
             # averaged at the steps every run logged (a damaged metrics line drops a step, never shifts one)
             by_step = [{row["steps"]: row.get("p_pi_0") for row in r.read_metrics()} for r in runs]
             common = sorted(set.intersection(*(set(b) for b in by_step)))
-            out.weights[weight_label(g.label)] = [(step, float(np.mean([b[step] for b in by_step]))) for step in common
-                                            if all(b[step] is not None for b in by_step)]
+            out.weights[weight_label(g.label)] = [(step, float(np.mean([b[step] for b in by_step])))
+                                                  for step in common if all(b[step] is not None for b in by_step)]
         out.rows.append(f"| {g.label} | {len(runs)} | " + " | ".join(cells)
                         + f" | {mean_pm_std(auc)} | {mean_pm_std(evals)} | {p} |")
         out.series[g.label] = list(zip(steps.tolist(), mean.tolist(), strict=True))

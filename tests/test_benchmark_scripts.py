@@ -62,13 +62,13 @@ def test_similarity_report_puts_every_teacher_of_the_target_on_the_same_seeds(re
     assert (path.parent / "similarity-curves.png").exists() and (path.parent / "similarity-weights.png").exists()
 
 
-
 def test_a_student_weight_curve_is_counted_like_its_return_curve():
     cross = load_script("cross_study")
     found = cross.Curves(per_seed={"mikt ← far": {"final return": np.array([1.0])},
                                    "vpg": {"final return": np.array([1.0, 2.0])}},
                          weights={cross.weight_label("mikt ← far"): [(2048, 0.5)]})
     assert found.weight_counts == {"mikt ← far (π)": 1}  # vpg mixes nothing: no weight curve to label
+
 
 def test_controls_report_puts_the_main_grids_runs_beside_the_controls_on_common_seeds(registry, tmp_path):
     grids, results = tmp_path / "grids", tmp_path / "results"
