@@ -158,6 +158,47 @@ def test_snapshots_restore_into_a_fresh_registry_so_the_study_skips_finished_cel
     assert (out / "state.json").read_text() == state_before
 
 
+
+def test_an_in_flight_snapshot_carries_an_unfinished_run_to_another_machine(registry, tmp_path, monkeypatch,
+                                                                            ctrl_c_at_second_update):
+    from typer.testing import CliRunner
+
+    from miktcli.cli.app import app
+    from miktcli.ppo import PPOTrainer
+    from miktcli.registry.runs import RunLock, open_run
+
+    grid_file, out = tmp_path / "g.toml", tmp_path / "out"
+    grid_file.write_text('name = "g"\nsteps = 6144\nseeds = [0]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
+                         '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+    runner = CliRunner()
+    assert runner.invoke(app, ["study", str(grid_file), "--out", str(out)]).exit_code != 0  # Ctrl-C, 2nd update
+    ctrl_c_at_second_update()
+    (run_id,) = json.loads((out / "state.json").read_text()).values()
+    assert open_run(registry, run_id).card.steps_done == 2048
+    script = [sys.executable, str(BENCHMARKS / "snapshot_study.py"), str(out), "--registry", str(registry)]
+
+    lock = RunLock(open_run(registry, run_id)).acquire()  # a study still training it: refused, nothing kept
+    r = subprocess.run([*script, "--in-flight"], capture_output=True, text=True)
+    assert r.returncode == 1 and f"{run_id} still training: stop the study" in r.stderr
+    assert not (out / "in-flight").exists()
+    lock.release()
+
+    subprocess.run([*script, "--in-flight"], check=True, capture_output=True)
+    kept = out / "in-flight" / run_id
+    assert sorted(p.name for p in kept.iterdir()) == ["checkpoint.safetensors", "metrics.jsonl", "run.json"]
+    registry.rename(tmp_path / "old-registry")  # another machine: the committed results only
+    r = subprocess.run([*script, "--restore"], check=True, capture_output=True, text=True)
+    assert "in flight: resumes" in r.stdout
+    updates, update = [], PPOTrainer.update
+    monkeypatch.setattr(PPOTrainer, "update", lambda self, batch: updates.append(1) or update(self, batch))
+    r = runner.invoke(app, ["study", str(grid_file), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    run = open_run(registry, run_id)  # resumed from its checkpoint under its own id: two updates, not three
+    assert run.card.status == "completed" and [m["steps"] for m in run.read_metrics()] == [2048, 4096, 6144]
+    assert len(updates) == 2
+    subprocess.run(script, check=True, capture_output=True)  # the finished snapshot supersedes the in-flight one
+    assert (out / "runs" / run_id / "run.json").exists() and not kept.exists()
+
 def test_every_committed_grid_loads():
     from miktcli.workflows.grid import load_grid
 
