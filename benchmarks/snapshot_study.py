@@ -48,7 +48,7 @@ def main() -> None:
         return
     if args.in_flight:
         snapshot_in_flight(args.results, args.registry, state)
-    for cell, run_id in sorted(state.items(), key=lambda kv: int(kv[1][3:])):
+    for cell, run_id in by_run_number(state):
         source = args.registry / "runs" / run_id
         if not (source / "run.json").is_file():
             print(f"{run_id}  {cell}: not in {args.registry}")
@@ -65,6 +65,11 @@ def main() -> None:
         print(f"{run_id}  {cell}: completed, copied")
 
 
+def by_run_number(state: dict[str, str]) -> list[tuple[str, str]]:
+    """The cells in the order their runs were created (run9 before run10)."""
+    return sorted(state.items(), key=lambda cell_run: int(cell_run[1].removeprefix("run")))
+
+
 IN_FLIGHT = "in-flight"
 IN_FLIGHT_FILES = ("checkpoint.safetensors", "metrics.jsonl", "run.json")  # the card last, as a run writes it
 
@@ -75,12 +80,12 @@ def snapshot_in_flight(results: Path, registry: Path, state: dict[str, str]) -> 
     shutil.rmtree(fresh, ignore_errors=True)
     fresh.mkdir(parents=True)
     training = []
-    for cell, run_id in sorted(state.items(), key=lambda kv: int(kv[1][3:])):
+    for cell, run_id in by_run_number(state):
         source = registry / "runs" / run_id
-        if not (source / "run.json").is_file() or not (source / "checkpoint.safetensors").is_file():
+        if not (source / "run.json").is_file():
             continue
         run = open_run(registry, run_id)
-        if run.card.status == "completed":
+        if run.card.status == "completed" or not run.checkpoint_path.is_file():
             continue
         if lock_owner(run) is not None:  # its checkpoint, metrics and card could be copied from different moments
             training.append(run_id)
@@ -107,7 +112,7 @@ def restore(results: Path, registry: Path, state: dict[str, str]) -> None:
     """Snapshots back into the registry; cells without one leave state.json (they start afresh, under new
     run ids, instead of adopting whatever run later takes their old id)."""
     kept, conflicts = {}, []
-    for cell, run_id in sorted(state.items(), key=lambda kv: int(kv[1][3:])):
+    for cell, run_id in by_run_number(state):
         snapshot, target = results / "runs" / run_id, registry / "runs" / run_id
         files = ("metrics.jsonl", "run.json")
         if not (snapshot / "run.json").is_file():
