@@ -8,7 +8,8 @@ The similarity grid names the target and the extra teacher (hopper → centipede
 other teachers of that target (centipede-four, centipede-six) and the baseline (vpg). Every curve uses the
 similarity grid's seeds, so all curves average the same seeds. Runs are read from the committed snapshots
 (`STUDY/runs/RUN/`, written by benchmarks/snapshot_study.py), so this works from a fresh clone. Writes
-`SIMILARITY/similarity.md`, `similarity-curves.png` and `similarity-weights.png`.
+`SIMILARITY/similarity.md` (the table and the over-seeds comparisons), `similarity-curves.png` and
+`similarity-weights.png`.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from cross_study import Group, curves_of, method_named, snapshot_runs, table_hea
 from miktcli.plots import png_plot
 from miktcli.registry.files import write_text_atomic
 from miktcli.workflows.grid import load_grid
-from miktcli.workflows.report import partial_seed_labels
+from miktcli.workflows.report import comparison_table, partial_seed_labels
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -58,6 +59,9 @@ def similarity_report(root: Path, main_name: str, similarity_name: str, method_n
              *table_head(marks)]
     found = curves_of(groups, seeds, marks)
     lines += found.rows
+    # The same over-seeds test as the study and controls reports: which teacher differences the seeds can separate.
+    compared, _ = comparison_table(found.per_seed)
+    lines += compared
     series, bands, weights, left_out = found.series, found.bands, found.weights, found.left_out
     out = root / similarity_name
     out.mkdir(parents=True, exist_ok=True)

@@ -41,6 +41,7 @@ def test_similarity_report_puts_every_teacher_of_the_target_on_the_same_seeds(re
         "four>hopper|mikt|1": fake_run(registry, "hopper", "mikt", 1, [3, 4, 5], 50, mix),
         "four>hopper|mikt|2": fake_run(registry, "hopper", "mikt", 2, [100, 100, 100], 999, mix),
         "->hopper|vpg|0": fake_run(registry, "hopper", "vpg", 0, [0, 0, 1], 10),
+        "->hopper|vpg|1": fake_run(registry, "hopper", "vpg", 1, [0, 0, 3], 20),
         "four>ant|mikt|0": fake_run(registry, "ant", "mikt", 0, [7, 7, 7], 7, mix),  # another target
     }
     sim_cells = {"far>hopper|mikt|0": fake_run(registry, "hopper", "mikt", 0, [0, 1, 1], 5, mix)}
@@ -53,12 +54,18 @@ def test_similarity_report_puts_every_teacher_of_the_target_on_the_same_seeds(re
 
     path = load_script("similarity_report").similarity_report(results, "main", "sim", grids=grids)
     rows = {line.split(" | ")[0].strip("| "): line for line in path.read_text().splitlines()
-            if line.startswith("| ") and not line.startswith("| curve")}
+            if line.startswith("| ") and not line.startswith("| curve") and " vs " not in line}
     assert rows.keys() == {"mikt ← four", "mikt ← far", "vpg"}
     # seeds 0 and 1 only: at 4096 steps 2 and 4, at 6144 3 and 5, mean over training 2 and 4, eval 30 and 50
     assert rows["mikt ← four"] == "| mikt ← four | 2 | 3 ± 1 | 4 ± 1 | 3 ± 1 | 40 ± 14 | 0.50 / 0.25 |"
     assert rows["mikt ← far"] == "| mikt ← far | 1 | 1 | 1 | 1 | 5 | 0.50 / 0.25 |"
-    assert rows["vpg"].startswith("| vpg | 1 | 0 | 1 |") and rows["vpg"].endswith("| 10 | — |")
+    assert rows["vpg"] == "| vpg | 2 | 0 ± 0 | 2 ± 1 | 1 ± 0 | 15 ± 7 | — |"
+    # over seeds: the teachers with two runs each are compared (final 3, 5 against 1, 3); one run is not enough
+    compared = [line for line in path.read_text().splitlines() if line.startswith("| mikt ← ") and " vs " in line]
+    assert [line.split(" | ")[:3] for line in compared] == [
+        ["| mikt ← four vs vpg", "2 / 2", measure] for measure in ("final return", "mean over training",
+                                                                    "final eval (no teacher)")]
+    assert compared[0] == "| mikt ← four vs vpg | 2 / 2 | final return | +2 | 0.88 | 0.667 | 0.333 |"
     assert (path.parent / "similarity-curves.png").exists() and (path.parent / "similarity-weights.png").exists()
 
 
