@@ -33,6 +33,9 @@ JOBS = [  # (env, steps, seed), in the order the paper-scale study needs them
     ("centipede-six", STEPS, 0),
     ("ant", STEPS, 0),
     ("hopper", STEPS, 0),
+    # the two teachers the multi-teacher study adds (CAT's four + eight -> six, four + cp-six -> eight)
+    ("centipede-eight", STEPS, 0),
+    ("cp-centipede-six", STEPS, 0),
 ]
 
 
