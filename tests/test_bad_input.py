@@ -204,7 +204,7 @@ def test_a_study_refuses_runs_its_registry_lacks_unless_told_to_retrain(registry
 
 def grid_error(tmp_path, body):
     from miktcli.errors import MiktError
-    from miktcli.workflows.grid import load_grid
+    from miktcli.studies.grid import load_grid
 
     (tmp_path / "g.toml").write_text(body)
     with pytest.raises(MiktError) as caught:
@@ -258,7 +258,7 @@ def test_an_empty_or_reversed_coupling_ramp_is_refused(registry):
 
 
 def test_an_unwritable_study_folder_is_found_before_any_run_exists(registry, tmp_path, monkeypatch):
-    import miktcli.workflows.study as study_module
+    import miktcli.studies.study as study_module
 
     grid = tmp_path / "g.toml"
     grid.write_text(GRID.format(episodes=1))

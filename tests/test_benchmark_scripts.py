@@ -125,8 +125,8 @@ def test_controls_report_puts_the_main_grids_runs_beside_the_controls_on_common_
 
 
 def test_snapshots_restore_into_a_fresh_registry_so_the_study_skips_finished_cells(registry, tmp_path):
-    from miktcli.workflows.grid import cell_key, load_grid
-    from miktcli.workflows.study import Study
+    from miktcli.studies.grid import cell_key, load_grid
+    from miktcli.studies.study import Study
 
     grid_file = tmp_path / "g.toml"
     grid_file.write_text('name = "g"\nsteps = 6144\nseeds = [0, 1, 2]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
@@ -207,7 +207,7 @@ def test_an_in_flight_snapshot_carries_an_unfinished_run_to_another_machine(regi
     assert (out / "runs" / run_id / "run.json").exists() and not kept.exists()
 
 def test_every_committed_grid_loads():
-    from miktcli.workflows.grid import load_grid
+    from miktcli.studies.grid import load_grid
 
     grids = sorted((BENCHMARKS / "grids").glob("*.toml"))
     assert len(grids) >= 9

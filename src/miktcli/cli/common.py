@@ -10,6 +10,8 @@ from typing import Annotated
 
 import typer
 
+from miktcli.errors import MiktError
+
 # Options shared by several commands, declared once.
 RegistryOption = Annotated[Path, typer.Option(
     "--registry", envvar="MIKT_REGISTRY", show_default=False,
@@ -74,3 +76,13 @@ def refuse_options_with_resume(ctx: typer.Context) -> None:
     if given:
         raise typer.BadParameter("cannot be combined with --resume: a resumed run keeps the settings its card "
                                  "records", ctx=ctx, param_hint=f"'{given[0]}'")
+
+
+def parse_hidden(text: str) -> list[int]:
+    try:
+        sizes = [int(s) for s in text.split(",")]  # an empty piece ("64,,64") is a typo, not a layer to skip
+    except ValueError:
+        raise MiktError(f"--hidden '{text}': expected comma-separated integers such as 64,64") from None
+    if not sizes or any(s <= 0 for s in sizes):
+        raise MiktError(f"--hidden '{text}': expected positive layer sizes such as 64,64")
+    return sizes

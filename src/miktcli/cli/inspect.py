@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
+from miktcli.cli.cards import render_card
 from miktcli.cli.common import DEFAULT_REGISTRY, JsonOption, RegistryOption
 from miktcli.cli.console import err, out, print_json
 
@@ -57,7 +58,6 @@ def inspect(
     if plot:
         prepare_output(plot)
     if not _is_run(target):
-        from miktcli.cli.teacher import render_card
         from miktcli.registry.teachers import load_teacher
 
         card = load_teacher(reg, target).card.model_dump(mode="json")
@@ -71,8 +71,6 @@ def inspect(
         print_json({"card": {**run.card.model_dump(mode="json"), "status": run.status}, "metrics": metrics})
         return
     if not (coupling or curve):
-        from miktcli.cli.teacher import render_card
-
         render_card({**run.card.model_dump(mode="json", exclude={"config"}), "status": run.status})
         err.print("Hint: --coupling for the mixing weights, --curve for the learning curve, --json for all.")
         return

@@ -97,9 +97,10 @@ def study(
         "lacks (without it: an error, as the registry is usually the wrong one)."),
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
-    from miktcli.cli.transfer import train_transfer_run
-    from miktcli.workflows.grid import load_grid
-    from miktcli.workflows.study import Study
+    from miktcli.cli.training import train_transfer_run
+    from miktcli.studies.grid import load_grid
+    from miktcli.studies.serial import run_serially
+    from miktcli.studies.study import Study
 
     setup_torch()
     grid = load_grid(grid_file)
@@ -109,9 +110,9 @@ def study(
     elif workers is None and address is None:  # embedded: serial, in this process, no Ray
         total = len(st.distinct_cells())
         done = 0
-        for key, run, what in st.execute(command_line(),
-                                         lambda r: train_transfer_run(r, registry, grid.eval_episodes),
-                                         retrain_missing):
+        for key, run, what in run_serially(st, command_line(),
+                                           lambda r: train_transfer_run(r, registry, grid.eval_episodes),
+                                           retrain_missing):
             if what in ("done", "finished"):
                 done += 1
                 err.print(f"[{done}/{total}] {key}: {run.id} completed")
@@ -129,7 +130,7 @@ def study(
 
 def _run_on_ray(st, registry: Path, workers: int | None, address: str | None, eval_episodes: int,
                 chunk_iterations: int, retrain_missing: bool) -> None:
-    from miktcli.workflows.ray_executor import require_ray, run_cells_on_ray
+    from miktcli.studies.ray_executor import require_ray, run_cells_on_ray
 
     require_ray()  # before any run folder is created: a clear error naming the extra
     cells = st.prepare(command_line(), retrain_missing)

@@ -8,6 +8,7 @@ import typer
 from rich.table import Table
 from rich.text import Text
 
+from miktcli.cli.cards import render_card
 from miktcli.cli.common import (
     DEFAULT_REGISTRY,
     CompileOption,
@@ -18,6 +19,7 @@ from miktcli.cli.common import (
     StepsOption,
     command_line,
     note_rounding,
+    parse_hidden,
     refuse_options_with_resume,
     setup_torch,
 )
@@ -31,16 +33,6 @@ app = typer.Typer(
     "  mikt teacher show centipede-four@v1\n\n  mikt teacher import ppo_hopper.zip --env hopper --obs-stats stats.json",
     no_args_is_help=True,
 )
-
-
-def parse_hidden(text: str) -> list[int]:
-    try:
-        sizes = [int(s) for s in text.split(",")]  # an empty piece ("64,,64") is a typo, not a layer to skip
-    except ValueError:
-        raise MiktError(f"--hidden '{text}': expected comma-separated integers such as 64,64") from None
-    if not sizes or any(s <= 0 for s in sizes):
-        raise MiktError(f"--hidden '{text}': expected positive layer sizes such as 64,64")
-    return sizes
 
 
 @app.command("train")
@@ -157,23 +149,6 @@ def _print_teacher_table(rows: list[dict], registry: Path) -> None:
         ret = "—" if c["final_return"] is None else f"{c['final_return']:.1f}"
         table.add_row(r["ref"], c["env"], str(c["obs_dim"]), str(c["act_dim"]),
                       "x".join(map(str, c["pi_hidden"])), f"{c['steps']:,}", ret, c["created"][:19])
-    out.print(table)
-
-
-def render_card(data: dict) -> None:
-    from miktcli.registry.cards import CodeSegment, describe_code_history
-
-    table = Table(show_header=False, box=None)
-    for key, value in data.items():
-        if key == "code_history":
-            if data.get("imported_from"):  # trained elsewhere: its import record says where
-                continue
-            trained = data.get("steps_done", data.get("steps", 0)) > 0  # run cards / teacher cards
-            value = describe_code_history([CodeSegment.model_validate(s) for s in value], data["code_version"],
-                                          trained=trained)
-        elif isinstance(value, dict):
-            value = ", ".join(f"{k}={v}" for k, v in value.items())
-        table.add_row(key, str(value))
     out.print(table)
 
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import typer
 
 from miktcli.cli.common import (
@@ -16,12 +14,13 @@ from miktcli.cli.common import (
     StepsOption,
     command_line,
     note_rounding,
+    parse_hidden,
     refuse_options_of_other_methods,
     refuse_options_with_resume,
     setup_torch,
 )
 from miktcli.cli.console import err, print_data, print_json
-from miktcli.cli.progress import training_progress
+from miktcli.cli.training import train_transfer_run
 from miktcli.errors import MiktError
 
 HELP = """Transfer from teachers to a new body with MIKT, or run a baseline on the same engine.
@@ -40,22 +39,6 @@ Examples:
 
   mikt transfer --resume run7
 """
-
-
-def train_transfer_run(run, registry: Path, eval_episodes: int) -> dict:
-    """Train a transfer run to its end with progress on stderr, then evaluate and save its student."""
-    from miktcli.workflows.session import run_to_end
-    from miktcli.workflows.transfer import train_transfer
-
-    sources = ", ".join(f"{t.name}@v{t.version}" for t in run.card.teachers) or "scratch"
-    err.print(f"{run.id}: {run.card.method} {sources} → {run.card.env}, {run.card.total_steps} steps, "
-              f"seed {run.card.seed} → {run.path}")
-    try:
-        with training_progress(run.card.total_steps, run.card.steps_done, run.id) as show:
-            return run_to_end(train_transfer(run, registry, eval_episodes), show)
-    except KeyboardInterrupt:
-        raise MiktError(f"interrupted; {run.id} keeps its last complete checkpoint",
-                        hint=f"continue with: mikt transfer --resume {run.id}") from None
 
 
 FLAG_HINTS = {  # library errors speak in domain terms; here they meet the flags that caused them
@@ -104,7 +87,6 @@ def transfer(
     as_json: JsonOption = False,
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
-    from miktcli.cli.teacher import parse_hidden
     from miktcli.methods import get_method, transfer_methods
     from miktcli.registry.runs import open_resumable
     from miktcli.workflows.transfer import start_transfer

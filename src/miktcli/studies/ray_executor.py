@@ -153,17 +153,8 @@ def _restore_sigterm(handler: Any) -> None:
         signal.signal(signal.SIGTERM, handler)
 
 
-def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: int | None, address: str | None,
-                     eval_episodes: int, chunk_iterations: int = CHUNK_ITERATIONS,
-                     on_progress: Callable[[list[CellProgress]], None] | None = None) -> Iterator[CellProgress]:
-    """Train the unfinished `cells` on Ray; yields each cell's progress when it completes or fails.
-
-    Starts a local Ray instance with `workers` CPUs (and stops it after) unless `address` names a running
-    cluster. Ctrl-C cancels the tasks and leaves every cell resumable from its last handed-back chunk."""
-    ray = require_ray()
-    env_vars = {k: os.environ[k] for k in ENV_FORWARD if k in os.environ}
-    env_vars.update({"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MIKT_THREADS": "1"})
-    started_here = not ray.is_initialized() and address is None
+def _connect(ray, workers: int | None, address: str | None, env_vars: dict[str, str]) -> None:
+    """Join the cluster at `address`, or start a local instance with `workers` CPUs (unless one is running)."""
     sigterm_before = signal.getsignal(signal.SIGTERM)
     try:
         if address is not None:
@@ -179,90 +170,132 @@ def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: i
                         hint="for a cluster, start it with `ray start --head` and pass --address auto") from None
     finally:
         _restore_sigterm(sigterm_before)
-    task = ray.remote(num_cpus=1, max_retries=0)(train_chunk_task)
-    system_errors = tuple(getattr(ray.exceptions, name) for name in (
-        "WorkerCrashedError", "NodeDiedError", "ObjectLostError", "RaySystemError", "OwnerDiedError",
-        "LocalRayletDiedError") if hasattr(ray.exceptions, name))
 
-    pending = [(key, run) for key, run in cells if run.card.status != "completed"]
-    progress = {run.id: CellProgress(key, run.id, run.card.total_steps, run.card.steps_done) for key, run in pending}
-    runs = {run.id: run for _, run in pending}
-    locks: dict[str, RunLock] = {}
-    chunks: dict[str, int] = {run_id: 0 for run_id in runs}
-    in_flight: dict[Any, str] = {}
-    queue = list(runs)
-    capacity = max(1, int(ray.cluster_resources().get("CPU", workers or 1)))
 
-    def submit(run_id: str) -> None:
-        run = open_run(registry, run_id)
+class RayDriver:
+    """Sends the cells' chunks to Ray, at most one per CPU of the cluster, and takes back what returns: a
+    chunk's files are written back and the cell's next chunk sent; a chunk whose worker died is sent again
+    (up to MAX_ATTEMPTS tries); a cell whose chunk raised, or whose workers kept dying, fails alone. The
+    driver holds every cell's lock from the start, so no local process trains them meanwhile."""
+
+    def __init__(self, ray, registry: Path, cells: list[tuple[str, Run]], *, capacity: int, eval_episodes: int,
+                 chunk_iterations: int):
+        self.ray, self.registry = ray, registry
+        self.eval_episodes, self.chunk_iterations, self.capacity = eval_episodes, chunk_iterations, capacity
+        self.task = ray.remote(num_cpus=1, max_retries=0)(train_chunk_task)
+        self.system_errors = tuple(getattr(ray.exceptions, name) for name in (
+            "WorkerCrashedError", "NodeDiedError", "ObjectLostError", "RaySystemError", "OwnerDiedError",
+            "LocalRayletDiedError") if hasattr(ray.exceptions, name))
+        pending = [(key, run) for key, run in cells if run.card.status != "completed"]
+        self.progress = {run.id: CellProgress(key, run.id, run.card.total_steps, run.card.steps_done)
+                         for key, run in pending}
+        self.runs = {run.id: run for _, run in pending}
+        self.chunks = {run_id: 0 for run_id in self.runs}  # chunks handed back, per cell, in this session
+        self.locks: dict[str, RunLock] = {}
+        self.in_flight: dict[Any, str] = {}  # task reference → run id
+        self.queue = list(self.runs)
+
+    def lock_all(self) -> None:
+        for run_id, run in self.runs.items():
+            self.locks[run_id] = RunLock(run).acquire()
+
+    def _submit(self, run_id: str) -> None:
+        run = open_run(self.registry, run_id)
         if run.card.status != "running":  # in flight from now on (`mikt runs` in the meantime says so)
             run.save_card(status="running")
-        runs[run_id] = run
-        files = _folder_files(run.path)
-        ref = task.remote(run_id, files, _teacher_payload(registry, run), chunks[run_id], chunk_iterations,
-                          eval_episodes, os.environ.get(FAULT_ENV))
-        in_flight[ref] = run_id
-        p = progress[run_id]
+        self.runs[run_id] = run
+        ref = self.task.remote(run_id, _folder_files(run.path), _teacher_payload(self.registry, run),
+                               self.chunks[run_id], self.chunk_iterations, self.eval_episodes,
+                               os.environ.get(FAULT_ENV))
+        self.in_flight[ref] = run_id
+        p = self.progress[run_id]
         p.attempts += 1
         if p.state == "queued":
             p.state = "training"
 
-    try:
-        for run_id in runs:
-            locks[run_id] = RunLock(runs[run_id]).acquire()  # no local process may train them meanwhile
-        while queue or in_flight:
-            while queue and len(in_flight) < capacity:
-                submit(queue.pop(0))
+    def _end(self, run_id: str, state: str, error: str | None = None) -> CellProgress:
+        p = self.progress[run_id]
+        p.state, p.error = state, error
+        if state == "failed":
+            self.runs[run_id].save_card(status="failed", error=error)
+        self.locks.pop(run_id).release()
+        return p
+
+    def _take_back(self, ref) -> CellProgress | None:
+        """What a finished task means for its cell: the cell's progress when the cell ended, else None."""
+        run_id = self.in_flight.pop(ref)
+        p = self.progress[run_id]
+        try:
+            files = self.ray.get(ref)
+        except self.system_errors as err:
+            if p.attempts < MAX_ATTEMPTS:
+                p.state = "retrying"  # again from the last folder handed back: the driver's copy
+                self._submit(run_id)
+                return None
+            return self._end(run_id, "failed", f"workers died {MAX_ATTEMPTS} times under one chunk: {err}")
+        except self.ray.exceptions.RayTaskError as err:
+            cause = err.cause if isinstance(getattr(err, "cause", None), BaseException) else err
+            return self._end(run_id, "failed", f"{type(cause).__name__}: {cause}")
+        _write_back(self.runs[run_id], files)
+        status = _update_progress(p, files)
+        self.chunks[run_id] += 1
+        p.attempts = 0
+        if status == "completed":
+            return self._end(run_id, "completed")
+        p.state = "training"
+        self._submit(run_id)
+        return None
+
+    def run(self, on_progress: Callable[[list[CellProgress]], None] | None) -> Iterator[CellProgress]:
+        while self.queue or self.in_flight:
+            while self.queue and len(self.in_flight) < self.capacity:
+                self._submit(self.queue.pop(0))
             if on_progress:
-                on_progress(list(progress.values()))
-            done, _ = ray.wait(list(in_flight), num_returns=1, timeout=5.0)
-            if not done:
-                continue
-            ref = done[0]
-            run_id = in_flight.pop(ref)
-            p = progress[run_id]
-            try:
-                files = ray.get(ref)
-            except system_errors as err:
-                if p.attempts < MAX_ATTEMPTS:
-                    p.state = "retrying"  # again from the last folder handed back: the driver's copy
-                    submit(run_id)
-                    continue
-                p.state, p.error = "failed", f"workers died {MAX_ATTEMPTS} times under one chunk: {err}"
-                runs[run_id].save_card(status="failed", error=p.error)
-                locks.pop(run_id).release()
-                yield p
-                continue
-            except ray.exceptions.RayTaskError as err:
-                cause = err.cause if isinstance(getattr(err, "cause", None), BaseException) else err
-                p.state, p.error = "failed", f"{type(cause).__name__}: {cause}"
-                runs[run_id].save_card(status="failed", error=p.error)
-                locks.pop(run_id).release()
-                yield p
-                continue
-            _write_back(runs[run_id], files)
-            status = _update_progress(p, files)
-            chunks[run_id] += 1
-            p.attempts = 0
-            if status == "completed":
-                p.state = "completed"
-                locks.pop(run_id).release()
-                yield p
-            else:
-                p.state = "training"
-                submit(run_id)
+                on_progress(list(self.progress.values()))
+            done, _ = self.ray.wait(list(self.in_flight), num_returns=1, timeout=5.0)
+            if done:
+                ended = self._take_back(done[0])
+                if ended is not None:
+                    yield ended
         if on_progress:
-            on_progress(list(progress.values()))
-    except KeyboardInterrupt:
-        for ref in list(in_flight):
-            ray.cancel(ref, force=True)
-        for run_id in locks:
-            run = open_run(registry, run_id)
+            on_progress(list(self.progress.values()))
+
+    def cancel(self) -> None:
+        """Stop every task; each cell it held stays resumable from its last handed-back chunk."""
+        for ref in list(self.in_flight):
+            self.ray.cancel(ref, force=True)
+        for run_id in self.locks:
+            run = open_run(self.registry, run_id)
             # a cell no chunk of which came back has trained nothing: not started, not interrupted
             run.save_card(status="interrupted" if run.card.steps_done else "created")
+
+    def release(self) -> None:
+        for lock in self.locks.values():
+            lock.release()
+
+
+def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: int | None, address: str | None,
+                     eval_episodes: int, chunk_iterations: int = CHUNK_ITERATIONS,
+                     on_progress: Callable[[list[CellProgress]], None] | None = None) -> Iterator[CellProgress]:
+    """Train the unfinished `cells` on Ray; yields each cell's progress when it completes or fails.
+
+    Starts a local Ray instance with `workers` CPUs (and stops it after) unless `address` names a running
+    cluster. Ctrl-C cancels the tasks and leaves every cell resumable from its last handed-back chunk."""
+    ray = require_ray()
+    env_vars = {k: os.environ[k] for k in ENV_FORWARD if k in os.environ}
+    env_vars.update({"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MIKT_THREADS": "1"})
+    started_here = not ray.is_initialized() and address is None
+    _connect(ray, workers, address, env_vars)
+    capacity = max(1, int(ray.cluster_resources().get("CPU", workers or 1)))
+    driver = RayDriver(ray, registry, cells, capacity=capacity, eval_episodes=eval_episodes,
+                       chunk_iterations=chunk_iterations)
+    try:
+        driver.lock_all()
+        yield from driver.run(on_progress)
+    except KeyboardInterrupt:
+        driver.cancel()
         raise
     finally:
-        for lock in locks.values():
-            lock.release()
+        driver.release()
         if started_here and ray.is_initialized():
             ray.shutdown()

@@ -1,8 +1,9 @@
-"""Studies: pairs × methods × seeds on one budget, resumable, with a Markdown table and plots.
+"""A study's plan and state: pairs × methods × seeds on one budget, resumable.
 
-A grid file (TOML) names the pairs, methods and seeds; the study runs each cell as an ordinary transfer
+A grid file (TOML) names the pairs, methods and seeds; the study prepares each cell as an ordinary transfer
 run (the same code path as `mikt transfer`), remembers which run holds which cell in `state.json`, and
-skips finished cells when started again. `report` aggregates whatever has finished.
+skips finished cells when started again. An executor (studies.serial, studies.ray_executor) trains the
+prepared cells; `report` aggregates whatever has finished.
 """
 
 from __future__ import annotations
@@ -10,9 +11,7 @@ from __future__ import annotations
 import functools
 import json
 import os
-from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
 
 from miktcli.envs.spec import load_spec
 from miktcli.errors import MiktError
@@ -20,8 +19,8 @@ from miktcli.registry.cards import TeacherRef
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.runs import Run, lock_owner, open_run, runs_dir
 from miktcli.registry.teachers import REF_RE, resolve
-from miktcli.workflows.grid import Grid, MethodSpec, PairSpec, cell_key, legacy_cell_key
-from miktcli.workflows.report import Report, write_report
+from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key, legacy_cell_key
+from miktcli.studies.report import Report, write_report
 from miktcli.workflows.session import whole_rollouts
 from miktcli.workflows.transfer import start_transfer
 
@@ -166,18 +165,6 @@ class Study:
             cells.append((key, run))
         return cells
 
-    def execute(self, command: str, train: Callable[[Run], Any],
-                retrain_missing: bool = False) -> Iterator[tuple[str, Run, str]]:
-        """The embedded executor: every unfinished cell in turn, in this process. Yields (cell, run, what
-        happened); `train` trains and finishes a run."""
-        for key, run in self.prepare(command, retrain_missing):
-            if run.card.status == "completed":
-                yield key, run, "done"
-                continue
-            yield key, run, "resume" if run.card.steps_done else "start"
-            train(run)
-            yield key, open_run(self.registry, run.id), "finished"
-
     def report(self) -> Report:
-        """Aggregate whatever has finished into results.md, summary.json and plots (see workflows.report)."""
+        """Aggregate whatever has finished into results.md, summary.json and plots (see studies.report)."""
         return write_report(self.grid, self.out_dir, self.cells, self.run_of)
