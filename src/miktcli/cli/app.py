@@ -18,6 +18,7 @@ from miktcli.cli import study as study_cmd
 from miktcli.cli import teacher as teacher_cmd
 from miktcli.cli import transfer as transfer_cmd
 from miktcli.cli.console import debug_enabled, err, print_error
+from miktcli.cli.method_options import PASS_UNKNOWN_FLAGS, MethodOptionsCommand
 from miktcli.errors import MiktError, describe_os_error
 
 
@@ -77,7 +78,8 @@ def root(
 
 app.add_typer(envs_cmd.app, name="envs")
 app.add_typer(teacher_cmd.app, name="teacher")
-app.command("transfer", help=transfer_cmd.HELP, no_args_is_help=True)(transfer_cmd.transfer)
+app.command("transfer", help=transfer_cmd.HELP, no_args_is_help=True, cls=MethodOptionsCommand,
+            context_settings=PASS_UNKNOWN_FLAGS)(transfer_cmd.transfer)
 app.command("eval", help=eval_cmd.HELP, no_args_is_help=True)(eval_cmd.eval_command)
 app.command("inspect", help=inspect_cmd.HELP, no_args_is_help=True)(inspect_cmd.inspect)
 app.command("runs")(runs_cmd.runs)

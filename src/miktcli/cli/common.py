@@ -72,7 +72,7 @@ def refuse_options_of_other_methods(ctx: typer.Context, method: str, names: set[
 
 def refuse_options_with_resume(ctx: typer.Context) -> None:
     """A usage error (exit 2) naming the first option or argument given on the command line beside --resume."""
-    given = given_on_command_line(ctx, {p.name for p in ctx.command.params} - RESUME_COMPATIBLE)
+    given = given_on_command_line(ctx, {p.name for p in ctx.command.params} - RESUME_COMPATIBLE) + ctx.args
     if given:
         raise typer.BadParameter("cannot be combined with --resume: a resumed run keeps the settings its card "
                                  "records", ctx=ctx, param_hint=f"'{given[0]}'")

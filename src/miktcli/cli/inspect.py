@@ -48,6 +48,7 @@ def inspect(
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     from miktcli.errors import MiktError
+    from miktcli.methods import METHODS
     from miktcli.outfiles import prepare_output
     from miktcli.plots import png_plot, text_plot
     from miktcli.registry.runs import open_run
@@ -77,9 +78,12 @@ def inspect(
     if coupling:
         keys = [k for k in (metrics[0] if metrics else {}) if k.startswith("p_")]
         if not keys:
+            method = METHODS.get(run.card.method)
+            mixing = [name for name, m in METHODS.items() if m.mixes_teachers]
             raise MiktError(f"run '{run.id}' has no mixing weights yet: it has no metrics"
-                            if run.card.method == "mikt" and not metrics
-                            else f"run '{run.id}' ({run.card.method}) has no mixing weights: only mikt runs do")
+                            if method is not None and method.mixes_teachers and not metrics
+                            else f"run '{run.id}' ({run.card.method}) has no mixing weights: only "
+                                 f"{', '.join(mixing)} runs do")
         table = Table("steps", *keys, "teacher")
         for r in _sampled(metrics, rows):
             table.add_row(f"{r['steps']:,}", *("—" if r.get(k) is None else f"{r[k]:.3f}" for k in keys),

@@ -257,4 +257,4 @@ def student(agent: ActorCritic) -> GaussianActorCritic:
 
 METHOD = Method(name="mikt", summary="MIKT (Algorithm 1): lateral mixing, coupling, L_MI", min_teachers=1,
                 max_teachers=None, default_kl_coef=0.05, options=MiktConfig, build=build, student=student,
-                with_teachers=with_teachers)
+                with_teachers=with_teachers, encoder_per_teacher=True)

@@ -6,10 +6,12 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from miktcli.errors import MiktError, describe_validation_error
 from miktcli.methods import get_method, transfer_methods
+
+LEGACY_OPTIONS_KEY = "mikt"  # where grids of mikt 0.1 kept a method's options
 
 
 class PairSpec(BaseModel):
@@ -30,9 +32,17 @@ class MethodSpec(BaseModel):
     name: str
     method: str
     kl_coef: float | None = Field(None, ge=0, allow_inf_nan=False)
-    # the method's options; grids write them under the key `mikt` whatever the method (`mikt = { mi = false }`):
-    # mikt is the only method with options so far, and the key is part of every committed grid
-    options: dict[str, Any] = Field(default_factory=dict, alias="mikt")
+    # the method's options (`options = { mi = false }`), checked by the method's own options model; grids of
+    # mikt 0.1 wrote them under `mikt` whatever the method, which still reads the same
+    options: dict[str, Any] = Field(default_factory=dict, validation_alias=AliasChoices("options", LEGACY_OPTIONS_KEY))
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_options_key(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "options" in data and LEGACY_OPTIONS_KEY in data:
+            raise ValueError(f"give the method's options once: under `options` or the older `{LEGACY_OPTIONS_KEY}`, "
+                             "not both")
+        return data
 
     @field_validator("method")
     @classmethod
@@ -40,6 +50,15 @@ class MethodSpec(BaseModel):
         if value not in transfer_methods():
             raise ValueError(f"unknown method '{value}', expected one of {', '.join(transfer_methods())}")
         return value
+
+    @model_validator(mode="after")
+    def _valid_options(self) -> MethodSpec:
+        # checked when the grid is read, so a bad option of one method creates no run of another
+        try:
+            get_method(self.method).parse_options(self.options)
+        except MiktError as err:
+            raise ValueError(str(err)) from None
+        return self
 
     @property
     def uses_teachers(self) -> bool:

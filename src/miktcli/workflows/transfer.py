@@ -11,7 +11,7 @@ import torch
 from pydantic import ValidationError
 
 from miktcli.envs import load_spec
-from miktcli.errors import MiktError, describe_validation_error
+from miktcli.errors import MiktError, TeacherMismatchError, describe_validation_error
 from miktcli.methods import get_method
 from miktcli.policies import GaussianActorCritic
 from miktcli.ppo import PPOConfig
@@ -34,19 +34,21 @@ def check_teachers(
     Returns the student's hidden sizes (policy, value): those of the teachers, which must agree."""
     if encoder_widths:
         if len(encoder_widths) != len(teachers):
-            raise MiktError(f"{len(encoder_widths)} encoder width(s) given for {len(teachers)} teacher(s)")
+            raise TeacherMismatchError(f"{len(encoder_widths)} encoder width(s) given for {len(teachers)} teacher(s)",
+                                       stated="encoder_widths")
         for t, width in zip(teachers, encoder_widths, strict=True):
             if width != t.card.obs_dim:
-                raise MiktError(f"teacher '{t.card.ref}': state dim {t.card.obs_dim} (from its card), "
-                                f"encoder width {width} requested")
+                raise TeacherMismatchError(f"teacher '{t.card.ref}': state dim {t.card.obs_dim} (from its card), "
+                                           f"encoder width {width} requested", stated="encoder_widths")
     first = teachers[0].card
     for t in teachers[1:]:
         if (t.card.pi_hidden, t.card.vf_hidden) != (first.pi_hidden, first.vf_hidden):
-            raise MiktError(f"teacher '{t.card.ref}': hidden sizes {t.card.pi_hidden}/{t.card.vf_hidden} differ "
-                            f"from teacher '{first.ref}' ({first.pi_hidden}/{first.vf_hidden})")
+            raise TeacherMismatchError(f"teacher '{t.card.ref}': hidden sizes {t.card.pi_hidden}/{t.card.vf_hidden} "
+                                       f"differ from teacher '{first.ref}' ({first.pi_hidden}/{first.vf_hidden})",
+                                       stated=None)
     if hidden is not None and (hidden != first.pi_hidden or hidden != first.vf_hidden):
-        raise MiktError(f"teacher '{first.ref}': hidden sizes {first.pi_hidden} (policy) / {first.vf_hidden} "
-                        f"(value) from its card, {hidden} requested")
+        raise TeacherMismatchError(f"teacher '{first.ref}': hidden sizes {first.pi_hidden} (policy) / "
+                                   f"{first.vf_hidden} (value) from its card, {hidden} requested", stated="hidden")
     return first.pi_hidden, first.vf_hidden
 
 
@@ -63,17 +65,14 @@ def start_transfer(
     """Check everything a transfer needs, then create its run folder (not yet trained)."""
     m = get_method(method)
     m.check_teacher_count(len(teacher_refs))
-    try:
-        parsed = m.parse_options(options)
-    except ValidationError as err:
-        raise MiktError(f"bad {method} option: {describe_validation_error(err)}") from err
+    parsed = m.parse_options(options)
     load_spec(to)
     teachers = [load_teacher(registry, ref) for ref in teacher_refs]
     refs = [t.card.ref for t in teachers]
     twice = sorted({ref for ref in refs if refs.count(ref) > 1})
     if twice:  # the same representation offered twice only splits the student's attention
         raise MiktError(f"teacher {twice[0]} is given more than once")
-    sizes = (check_teachers(teachers, encoder_widths if m.name == "mikt" else None, hidden) if teachers
+    sizes = (check_teachers(teachers, encoder_widths if m.encoder_per_teacher else None, hidden) if teachers
              else (hidden or DEFAULT_HIDDEN, hidden or DEFAULT_HIDDEN))
     try:
         ppo = PPOConfig(num_envs=num_envs, kl_coef=m.default_kl_coef if kl_coef is None else kl_coef,
