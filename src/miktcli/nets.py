@@ -85,7 +85,7 @@ class MLP(nn.Module):
             orthogonal_linear(a, b, math.sqrt(2.0)) for a, b in zip(sizes[:-1], sizes[1:], strict=True)
         )
         self.head = orthogonal_linear(sizes[-1], n_out, out_gain)
-        # Plain references for the hot paths: calling nn.Linear modules costs more than the matmuls here.
+        # Plain references for the hot paths (F.linear on them): they skip nn.Module's call overhead.
         self.layer_params = [(layer.weight, layer.bias) for layer in self.hidden]
         self.head_params = (self.head.weight, self.head.bias)
 

@@ -101,13 +101,14 @@ def import_command(
 
 
 def _teacher_rows(reg: Path) -> list[dict]:
+    from miktcli.registry.cards import TeacherVersion
     from miktcli.registry.teachers import list_names, read_teacher_card, teachers_dir, versions
 
     rows = []
     for name in list_names(reg):
         for v in versions(reg, name):
             path = teachers_dir(reg) / name / f"v{v}.safetensors"
-            stored_as = f"{name}@v{v}"  # where the file lies is what `eval` and `transfer` resolve
+            stored_as = str(TeacherVersion(name, v))  # where the file lies is what `eval` and `transfer` resolve
             try:
                 card = read_teacher_card(path)  # the header only: no weights are loaded
                 if card.ref != stored_as:

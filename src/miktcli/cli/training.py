@@ -14,7 +14,7 @@ def train_transfer_run(run, registry: Path, eval_episodes: int) -> dict:
     from miktcli.workflows.session import run_to_end
     from miktcli.workflows.transfer import train_transfer
 
-    sources = ", ".join(f"{t.name}@v{t.version}" for t in run.card.teachers) or "scratch"
+    sources = ", ".join(t.ref for t in run.card.teachers) or "scratch"
     err.print(f"{run.id}: {run.card.method} {sources} → {run.card.env}, {run.card.total_steps} steps, "
               f"seed {run.card.seed} → {run.path}")
     try:

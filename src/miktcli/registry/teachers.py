@@ -14,7 +14,7 @@ import torch
 
 from miktcli.errors import MiktError
 from miktcli.policies import GaussianActorCritic
-from miktcli.registry.cards import TEACHER_SCHEMA_VERSION, TeacherCard
+from miktcli.registry.cards import TEACHER_SCHEMA_VERSION, TeacherCard, TeacherVersion
 from miktcli.registry.files import read_card, read_tensors, save_with_card, tensors_sha256, verify_sha
 from miktcli.registry.runs import Run, check_registry
 
@@ -138,10 +138,10 @@ def load_teacher(registry: Path, ref: str) -> Teacher:
     """Load a verified teacher, frozen: normaliser statistics fixed, no gradients for its parameters."""
     path = resolve(registry, ref)
     card, policy = load_policy_file(path)
-    stored_as = (path.parent.name, int(path.stem[1:]))
+    stored_as = TeacherVersion(path.parent.name, int(path.stem[1:]))
     if (card.name, card.version) != stored_as:
-        raise MiktError(f"{path}: the card names {card.ref} but the file is stored as "
-                        f"{stored_as[0]}@v{stored_as[1]} (moved or tampered)")
+        raise MiktError(f"{path}: the card names {card.ref} but the file is stored as {stored_as} "
+                        "(moved or tampered)")
     policy.requires_grad_(False)
     policy.eval()
     return Teacher(card, path, policy)
@@ -168,7 +168,7 @@ def load_run_teachers(run: Run, registry: Path) -> list[Teacher]:
     """The exact teacher versions a run was started with; a changed file is refused."""
     teachers = []
     for ref in run.card.teachers:
-        t = load_teacher(registry, f"{ref.name}@v{ref.version}")
+        t = load_teacher(registry, ref.ref)
         if t.card.tensors_sha256 != ref.sha256:
             raise MiktError(f"run '{run.id}': teacher '{t.card.ref}' is not the one the run started with "
                             f"(sha256 {t.card.tensors_sha256[:12]}… vs {ref.sha256[:12]}…)")

@@ -6,12 +6,11 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from miktcli import compat
 from miktcli.errors import MiktError, describe_validation_error
 from miktcli.methods import get_method, transfer_methods
-
-LEGACY_OPTIONS_KEY = "mikt"  # where grids of mikt 0.1 kept a method's options
 
 
 class PairSpec(BaseModel):
@@ -32,17 +31,13 @@ class MethodSpec(BaseModel):
     name: str
     method: str
     kl_coef: float | None = Field(None, ge=0, allow_inf_nan=False)
-    # the method's options (`options = { mi = false }`), checked by the method's own options model; grids of
-    # mikt 0.1 wrote them under `mikt` whatever the method, which still reads the same
-    options: dict[str, Any] = Field(default_factory=dict, validation_alias=AliasChoices("options", LEGACY_OPTIONS_KEY))
+    # the method's options (`options = { mi = false }`), checked by the method's own options model
+    options: dict[str, Any] = Field(default_factory=dict)
 
     @model_validator(mode="before")
     @classmethod
-    def _one_options_key(cls, data: Any) -> Any:
-        if isinstance(data, dict) and "options" in data and LEGACY_OPTIONS_KEY in data:
-            raise ValueError(f"give the method's options once: under `options` or the older `{LEGACY_OPTIONS_KEY}`, "
-                             "not both")
-        return data
+    def _older(cls, data: Any) -> Any:
+        return compat.grid_method(data)
 
     @field_validator("method")
     @classmethod
@@ -124,8 +119,3 @@ def cell_key(pair: PairSpec, method: MethodSpec, seed: int) -> str:
     pair with that target shares it: the key leaves the teachers out ("-" in their place)."""
     source = "+".join(pair.teachers) if method.uses_teachers else "-"
     return f"{source}>{pair.to}|{method.name}|{seed}"
-
-
-def legacy_cell_key(pair: PairSpec, method: MethodSpec, seed: int) -> str:
-    """Keys of state.json files written by mikt 0.1, where every cell named its pair."""
-    return f"{'+'.join(pair.teachers)}>{pair.to}|{method.name}|{seed}"

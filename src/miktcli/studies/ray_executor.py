@@ -118,7 +118,7 @@ def train_chunk_task(run_id: str, run_files: dict[str, bytes], teacher_files: di
 def _teacher_payload(registry: Path, run: Run) -> dict[str, tuple[bytes, str]]:
     payload = {}
     for ref in run.card.teachers:
-        path = resolve(registry, f"{ref.name}@v{ref.version}")
+        path = resolve(registry, ref.ref)
         data = path.read_bytes()
         payload[f"{ref.name}/{path.name}"] = (data, hashlib.sha256(data).hexdigest())
     return payload

@@ -13,13 +13,14 @@ import json
 import os
 from pathlib import Path
 
+from miktcli import compat
 from miktcli.envs.spec import load_spec
 from miktcli.errors import MiktError
 from miktcli.registry.cards import TeacherRef
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.runs import Run, lock_owner, open_run, runs_dir
 from miktcli.registry.teachers import REF_RE, resolve
-from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key, legacy_cell_key
+from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key
 from miktcli.studies.report import Report, write_report
 from miktcli.workflows.session import whole_rollouts
 from miktcli.workflows.transfer import start_transfer
@@ -38,7 +39,7 @@ def cell_mismatch(run: Run, pair: PairSpec, method: MethodSpec, seed: int, steps
     refs = pair.teachers if method.uses_teachers else []
     same_teachers = len(refs) == len(card.teachers) and all(map(names_teacher, refs, card.teachers))
     if (card.kind, card.env, card.method, card.seed) != ("transfer", pair.to, method.method, seed) or not same_teachers:
-        teachers = ", ".join(f"{t.name}@v{t.version}" for t in card.teachers) or "none"
+        teachers = ", ".join(t.ref for t in card.teachers) or "none"
         return f"is a {card.kind} run of {card.method} on {card.env}, seed {card.seed}, teachers {teachers}"
     if card.total_steps != whole_rollouts(steps, card.config.ppo.batch_size):
         return f"trains {card.total_steps:,} steps, the grid {steps:,}"
@@ -49,12 +50,8 @@ class Study:
     def __init__(self, grid: Grid, out_dir: Path, registry: Path):
         self.grid, self.out_dir, self.registry = grid, Path(out_dir), Path(registry)
         self.state_path = self.out_dir / "state.json"
-        self.cells: dict[str, str] = self._read_state()
-        for pair, method, seed in self.plan():  # adopt the runs of a state.json written by mikt 0.1
-            key, legacy = cell_key(pair, method, seed), legacy_cell_key(pair, method, seed)
-            if key != legacy and legacy in self.cells:
-                run_id = self.cells.pop(legacy)
-                self.cells.setdefault(key, run_id)
+        self.cells: dict[str, str] = compat.adopt_cells(self._read_state(), (
+            (cell_key(p, m, s), compat.cell_key(p.teachers, p.to, m.name, s)) for p, m, s in self.plan()))
 
     @functools.cached_property
     def _cell_of(self) -> dict[str, tuple[PairSpec, MethodSpec, int]]:
