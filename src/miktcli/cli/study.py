@@ -107,20 +107,27 @@ def study(
     st = Study(grid, out or Path("benchmarks/results") / grid.name, registry)
     if report_only:
         st.check_envs()  # the other branches check it before any cell is created
-    elif workers is None and address is None:  # embedded: serial, in this process, no Ray
-        total = len(st.distinct_cells())
-        done = 0
-        for key, run, what in run_serially(st, command_line(),
-                                           lambda r: train_transfer_run(r, registry, grid.eval_episodes),
-                                           retrain_missing):
-            if what in ("done", "finished"):
-                done += 1
-                err.print(f"[{done}/{total}] {key}: {run.id} completed")
-                st.report()  # refreshed after every cell, so an interruption leaves a current report
-            else:
-                err.print(f"{key}: {what} {run.id}")
-    else:
-        _run_on_ray(st, registry, workers, address, grid.eval_episodes, chunk_iterations, retrain_missing)
+        _report(st)
+        return
+    with st.driving():  # one driver per study folder, from its first prepared cell to its report
+        if workers is None and address is None:  # embedded: serial, in this process, no Ray
+            total = len(st.distinct_cells())
+            done = 0
+            for key, run, what in run_serially(st, command_line(),
+                                               lambda r: train_transfer_run(r, registry, grid.eval_episodes),
+                                               retrain_missing):
+                if what in ("done", "finished"):
+                    done += 1
+                    err.print(f"[{done}/{total}] {key}: {run.id} completed")
+                    st.report()  # refreshed after every cell, so an interruption leaves a current report
+                else:
+                    err.print(f"{key}: {what} {run.id}")
+        else:
+            _run_on_ray(st, registry, workers, address, grid.eval_episodes, chunk_iterations, retrain_missing)
+        _report(st)
+
+
+def _report(st) -> None:
     report = st.report()
     for problem in report.left_out:
         err.print(f"warning: left out of the report: {problem}")

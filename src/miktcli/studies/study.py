@@ -10,13 +10,15 @@ from __future__ import annotations
 
 import functools
 import json
-import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from miktcli.envs.spec import load_spec
 from miktcli.errors import MiktError
 from miktcli.registry.cards import TeacherRef
 from miktcli.registry.files import write_text_atomic
+from miktcli.registry.locks import FileLock, lock_holder
 from miktcli.registry.runs import Run, lock_owner, open_run, runs_dir
 from miktcli.registry.teachers import REF_RE, resolve
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key, legacy_cell_key
@@ -45,16 +47,56 @@ def cell_mismatch(run: Run, pair: PairSpec, method: MethodSpec, seed: int, steps
     return None
 
 
+LOCK_FILE = ".lock"  # in the study folder: held by the one process driving the study (see Study.driving)
+
+
 class Study:
     def __init__(self, grid: Grid, out_dir: Path, registry: Path):
         self.grid, self.out_dir, self.registry = grid, Path(out_dir), Path(registry)
         self.state_path = self.out_dir / "state.json"
-        self.cells: dict[str, str] = self._read_state()
+        self.lock = FileLock(self.out_dir / LOCK_FILE)
+        self._driving = 0  # depth of `driving()` blocks: the lock is kept until the outermost one ends
+        self.cells: dict[str, str] = {}
+        self._load_state()
+
+    def _load_state(self) -> None:
+        self.cells = self._read_state()
         for pair, method, seed in self.plan():  # adopt the runs of a state.json written by mikt 0.1
             key, legacy = cell_key(pair, method, seed), legacy_cell_key(pair, method, seed)
             if key != legacy and legacy in self.cells:
                 run_id = self.cells.pop(legacy)
                 self.cells.setdefault(key, run_id)
+
+    @contextmanager
+    def driving(self) -> Iterator[Study]:
+        """Drive the study: the first `prepare` inside takes the study folder's lock, and it is kept until the
+        block ends, so that no second driver trains the same cells (two drivers each trained every cell, and
+        state.json and results.md then named different runs). Reading the folder (`report`) needs no lock."""
+        self._driving += 1
+        try:
+            yield self
+        finally:
+            self._driving -= 1
+            if not self._driving:
+                self.lock.release()
+
+    def _take_lock(self) -> None:
+        """The study folder's lock, then state.json as it is now (another driver may have written it since
+        this object read it)."""
+        if self.lock.held:
+            return
+        try:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+            taken = self.lock.try_acquire()  # creates a file: also the check that the folder is writable
+        except OSError as err:  # before any run exists: else each try leaves one behind
+            raise MiktError(f"cannot write the study's results to {self.out_dir}: {err.strerror or err}",
+                            hint="choose another --out") from None
+        if not taken:
+            owner = lock_holder(self.lock.path)
+            raise MiktError(f"{self.out_dir} is driven by another `mikt study` (pid {owner if owner else '?'})",
+                            hint="wait for it to end, or stop it (Ctrl-C or SIGTERM) and start again; "
+                                 "--report-only reads the folder meanwhile")
+        self._load_state()
 
     @functools.cached_property
     def _cell_of(self) -> dict[str, tuple[PairSpec, MethodSpec, int]]:
@@ -135,10 +177,11 @@ class Study:
         cause is the wrong registry, where retraining would re-point state.json away from the real runs."""
         self.check_envs()
         self.check_teachers()
-        self.out_dir.mkdir(parents=True, exist_ok=True)
-        if not os.access(self.out_dir, os.W_OK):  # before any run exists: else each try leaves one behind
-            raise MiktError(f"cannot write the study's results to {self.out_dir} (read-only or no permission)",
-                            hint="choose another --out")
+        with self.driving():
+            self._take_lock()
+            return self._prepare_cells(command, retrain_missing)
+
+    def _prepare_cells(self, command: str, retrain_missing: bool) -> list[tuple[str, Run]]:
         missing = self.missing_runs()
         if missing and not retrain_missing:
             ids = ", ".join(run_id for _, run_id in missing[:5]) + (" …" if len(missing) > 5 else "")

@@ -68,7 +68,8 @@ def unusable(run: Run, rows: list[dict[str, Any]]) -> str | None:
         return None
     off = next((s for s in steps if s <= 0 or s % batch), None)
     if off is not None:
-        return f"{run.id}: {name} has a row at {off:,} steps, which is not one of its iterations (every {batch:,} steps)"
+        return (f"{run.id}: {name} has a row at {off:,} steps, which is not one of its iterations "
+                f"(every {batch:,} steps)")
     missing = sorted(set(expected) - set(steps))
     if missing:
         return (f"{run.id}: {name} lacks {len(missing)} of its {len(expected)} iterations' rows "
