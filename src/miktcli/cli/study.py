@@ -97,9 +97,7 @@ def study(
         "lacks (without it: an error, as the registry is usually the wrong one)."),
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
-    from miktcli.cli.training import train_transfer_run
     from miktcli.studies.grid import load_grid
-    from miktcli.studies.serial import run_serially
     from miktcli.studies.study import Study
 
     setup_torch()
@@ -111,20 +109,16 @@ def study(
         return
     with st.driving():  # one driver per study folder, from its first prepared cell to its report
         if workers is None and address is None:  # embedded: serial, in this process, no Ray
-            total = len(st.distinct_cells())
-            done = 0
-            for key, run, what in run_serially(st, command_line(),
-                                               lambda r: train_transfer_run(r, registry, grid.eval_episodes),
-                                               retrain_missing):
-                if what in ("done", "finished"):
-                    done += 1
-                    err.print(f"[{done}/{total}] {key}: {run.id} completed")
-                    st.report()  # refreshed after every cell, so an interruption leaves a current report
-                else:
-                    err.print(f"{key}: {what} {run.id}")
+            failed = _run_serially(st, registry, grid.eval_episodes, retrain_missing)
         else:
-            _run_on_ray(st, registry, workers, address, grid.eval_episodes, chunk_iterations, retrain_missing)
-        _report(st)
+            failed = _run_on_ray(st, registry, workers, address, grid.eval_episodes, chunk_iterations,
+                                 retrain_missing)
+        _report(st)  # also when cells failed: the others are reported, the failed ones named
+    for key, run_id, error in failed:
+        print_error(f"{key}: {run_id} failed: {error}")
+    if failed:
+        raise MiktError(f"{len(failed)} cell(s) failed; the others are reported",
+                        hint="see `mikt inspect RUN` for each failed run; running the study again retries them")
 
 
 def _report(st) -> None:
@@ -135,8 +129,37 @@ def _report(st) -> None:
     print_data(report.path)
 
 
+def _run_serially(st, registry: Path, eval_episodes: int, retrain_missing: bool) -> list[tuple[str, str, str]]:
+    """Every unfinished cell in this process, one after another; (cell, run id, error) of each that failed."""
+    from miktcli.cli.training import train_with_progress
+    from miktcli.studies.serial import run_serially
+
+    total = len(st.distinct_cells())
+    done, failed, training = 0, [], None
+    try:
+        for event in run_serially(st, command_line(), lambda r: train_with_progress(r, registry, eval_episodes),
+                                  retrain_missing):
+            training = None
+            if event.what in ("done", "finished"):
+                done += 1
+                err.print(f"[{done}/{total}] {event.key}: {event.run.id} completed")
+                st.report()  # refreshed after every cell, so an interruption leaves a current report
+            elif event.what == "failed":
+                failed.append((event.key, event.run.id, event.error))
+                err.print(f"{event.key}: {event.run.id} failed: {event.error}; going on with the next cell")
+                st.report()
+            else:
+                training = event.run.id
+                err.print(f"{event.key}: {event.what} {event.run.id}")
+    except KeyboardInterrupt:
+        kept = f"{training} keeps its last complete checkpoint" if training else "every finished cell is kept"
+        raise MiktError(f"interrupted; {kept}", hint="run the same command again to resume the study") from None
+    return failed
+
+
 def _run_on_ray(st, registry: Path, workers: int | None, address: str | None, eval_episodes: int,
-                chunk_iterations: int, retrain_missing: bool) -> None:
+                chunk_iterations: int, retrain_missing: bool) -> list[tuple[str, str, str]]:
+    """The unfinished cells on Ray; (cell, run id, error) of each that failed."""
     from miktcli.studies.ray_executor import require_ray, run_cells_on_ray
 
     require_ray()  # before any run folder is created: a clear error naming the extra
@@ -164,8 +187,4 @@ def _run_on_ray(st, registry: Path, workers: int | None, address: str | None, ev
     finally:
         if live:
             live.stop()
-    for progress in failed:
-        print_error(f"{progress.key}: {progress.run_id} failed: {progress.error}")
-    if failed:
-        raise MiktError(f"{len(failed)} cell(s) failed; the others are reported",
-                        hint="see `mikt inspect RUN` for each failed run")
+    return [(p.key, p.run_id, p.error or "no error recorded") for p in failed]

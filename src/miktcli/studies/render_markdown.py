@@ -87,6 +87,11 @@ def _intro(summary: StudySummary) -> list[str]:
     if summary.left_out:  # said at the top: these runs finished but their numbers are in no table below
         lines += ["**Completed runs left out** (their files are incomplete; restore them from a snapshot or "
                   "train the cells again):", "", *(f"- {problem}" for problem in summary.left_out), ""]
+    failed = [(key, run_id, run.card.error or "no error recorded") for key, run_id, run in summary.cells
+              if run is not None and run.card.status == "failed"]
+    if failed:  # also at the top: a study with a failed cell is not finished, whatever its tables show
+        lines += ["**Failed cells** (their runs stopped with an error; running the study again retries them):", "",
+                  *(f"- {key}: {run_id}: {error}" for key, run_id, error in failed), ""]
     if draws_summary(summary):
         lines += [f"![every pair]({SUMMARY_FIGURE})", ""]
     return lines + [
