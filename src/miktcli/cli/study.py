@@ -160,9 +160,17 @@ def _run_serially(st, registry: Path, eval_episodes: int, retrain_missing: bool)
 def _run_on_ray(st, registry: Path, workers: int | None, address: str | None, eval_episodes: int,
                 chunk_iterations: int, retrain_missing: bool) -> list[tuple[str, str, str]]:
     """The unfinished cells on Ray; (cell, run id, error) of each that failed."""
-    from miktcli.studies.ray_executor import require_ray, run_cells_on_ray
+    from miktcli.studies.ray_executor import ray_session
 
-    require_ray()  # before any run folder is created: a clear error naming the extra
+    # connected before any run folder is created: a missing extra or a cluster that is not there is one line
+    with ray_session(workers, address):
+        return _train_on_ray(st, registry, workers, address, eval_episodes, chunk_iterations, retrain_missing)
+
+
+def _train_on_ray(st, registry: Path, workers: int | None, address: str | None, eval_episodes: int,
+                  chunk_iterations: int, retrain_missing: bool) -> list[tuple[str, str, str]]:
+    from miktcli.studies.ray_executor import run_cells_on_ray
+
     cells = st.prepare(command_line(), retrain_missing)
     finished_before = sum(run.card.status == "completed" for _, run in cells)  # the progress shows the rest
     failed = []
