@@ -129,17 +129,29 @@ def _report(st) -> None:
     print_data(report.path)
 
 
+def _announce_pins(st) -> None:
+    """The versions this run of the study pinned for references that name none (studies.pins)."""
+    for ref, pin in st.new_pins:
+        if "@v" not in ref:
+            name = ref.split("@")[0]
+            err.print(f"study: `{ref}` pinned to {pin.ref} ({st.pins_path.name}); a later version of {name} "
+                      "does not change this study")
+
+
 def _run_serially(st, registry: Path, eval_episodes: int, retrain_missing: bool) -> list[tuple[str, str, str]]:
     """Every unfinished cell in this process, one after another; (cell, run id, error) of each that failed."""
     from miktcli.cli.training import train_with_progress
     from miktcli.studies.serial import run_serially
 
     total = len(st.distinct_cells())
-    done, failed, training = 0, [], None
+    done, failed, training, announced = 0, [], None, False
     try:
         for event in run_serially(st, command_line(), lambda r: train_with_progress(r, registry, eval_episodes),
                                   retrain_missing):
             training = None
+            if not announced:  # the first event comes right after the study was prepared
+                _announce_pins(st)
+                announced = True
             if event.what in ("done", "finished"):
                 done += 1
                 err.print(f"[{done}/{total}] {event.key}: {event.run.id} completed")
@@ -172,6 +184,7 @@ def _train_on_ray(st, registry: Path, workers: int | None, address: str | None, 
     from miktcli.studies.ray_executor import run_cells_on_ray
 
     cells = st.prepare(command_line(), retrain_missing)
+    _announce_pins(st)
     finished_before = sum(run.card.status == "completed" for _, run in cells)  # the progress shows the rest
     failed = []
     live = Live(console=err, refresh_per_second=2, transient=False) if err.is_terminal else None

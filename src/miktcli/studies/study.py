@@ -19,9 +19,10 @@ from miktcli.errors import MiktError
 from miktcli.registry.cards import TeacherRef
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.locks import FileLock, lock_holder
-from miktcli.registry.runs import Run, lock_owner, open_run, runs_dir
+from miktcli.registry.runs import RUN_RE, Run, lock_owner, open_run, runs_dir
 from miktcli.registry.teachers import REF_RE, resolve
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key, legacy_cell_key
+from miktcli.studies.pins import PINS_FILE, Pin, check_pin, pin_now, read_pins, write_pins
 from miktcli.studies.report import Report, write_report
 from miktcli.workflows.session import whole_rollouts
 from miktcli.workflows.transfer import start_transfer
@@ -56,6 +57,9 @@ class Study:
         self.state_path = self.out_dir / "state.json"
         self.lock = FileLock(self.out_dir / LOCK_FILE)
         self._driving = 0  # depth of `driving()` blocks: the lock is kept until the outermost one ends
+        self.pins_path = self.out_dir / PINS_FILE
+        self.pins: dict[str, Pin] = {}
+        self.new_pins: list[tuple[str, Pin]] = []  # (grid reference, pin) pinned by the last `prepare`
         self.cells: dict[str, str] = {}
         self._load_state()
 
@@ -140,12 +144,52 @@ class Study:
             except MiktError as err:
                 raise MiktError(f"grid '{self.grid.name}', pair {pair.name}: {err}", hint=err.hint) from err
 
+    def teacher_refs(self) -> list[str]:
+        """Every teacher reference of the grid that a cell trains with, once each, in grid order."""
+        if not any(m.uses_teachers for m in self.grid.methods):
+            return []
+        return list(dict.fromkeys(ref for pair in self.grid.pairs for ref in pair.teachers))
+
     def check_teachers(self) -> None:
         """Every teacher the grid names must exist before the first cell trains."""
-        for pair in self.grid.pairs:
-            if any(m.uses_teachers for m in self.grid.methods):
-                for ref in pair.teachers:
-                    resolve(self.registry, ref)
+        for ref in self.teacher_refs():
+            resolve(self.registry, ref)
+
+    def _pin_teachers(self) -> None:
+        """Each teacher reference → one version for the whole study (studies.pins): the pin of teachers.json,
+        else the version the study's earliest run used (a study prepared before pins existed), else the version
+        the reference means now. Checked against this registry's files before any cell is created."""
+        self.pins, self.new_pins = read_pins(self.pins_path), []
+        missing = [ref for ref in self.teacher_refs() if ref not in self.pins]
+        used = self._versions_used(missing) if missing else {}
+        for ref in missing:
+            pin = used.get(ref) or pin_now(self.registry, ref)
+            self.pins[ref] = pin
+            self.new_pins.append((ref, pin))
+        for ref in self.teacher_refs():
+            check_pin(self.registry, self.pins_path, ref, self.pins[ref])
+        if self.new_pins:
+            write_pins(self.pins_path, self.pins)
+
+    def _versions_used(self, refs: list[str]) -> dict[str, Pin]:
+        """For each reference, the teacher the study's earliest-created run trained with, where one did."""
+        used: dict[str, Pin] = {}
+        def created(cell_run: tuple[str, str]) -> int:
+            m = RUN_RE.fullmatch(cell_run[1])
+            return int(m.group(1)) if m else 0
+
+        for key, run_id in sorted(self.cells.items(), key=created):
+            cell = self._cell_of.get(key)
+            if cell is None or not cell[1].uses_teachers or not (runs_dir(self.registry) / run_id).is_dir():
+                continue
+            try:
+                teachers = open_run(self.registry, run_id).card.teachers
+            except MiktError:
+                continue  # run_of names what is wrong with it when the cell is reached
+            for ref, teacher in zip(cell[0].teachers, teachers, strict=False):
+                if ref in refs and ref not in used and names_teacher(ref, teacher):
+                    used[ref] = Pin(ref=f"{teacher.name}@v{teacher.version}", sha256=teacher.sha256)
+        return used
 
     def run_of(self, key: str) -> Run | None:
         """The run state.json names for a cell; None when it names none or the registry has no such run (the
@@ -188,6 +232,7 @@ class Study:
             raise MiktError(f"{self.state_path} names {len(missing)} run(s) that {self.registry} lacks: {ids}",
                             hint="is this the study's registry? Restore its runs (benchmarks/snapshot_study.py "
                                  "--restore), or pass --retrain-missing to train those cells afresh")
+        self._pin_teachers()
         cells = []
         for pair, method, seed in self.distinct_cells():
             key = cell_key(pair, method, seed)
@@ -195,7 +240,8 @@ class Study:
             if run is None:
                 run = start_transfer(
                     self.registry, to=pair.to, method=method.method,
-                    teacher_refs=pair.teachers if method.uses_teachers else [], steps=self.grid.steps,
+                    teacher_refs=[self.pins[ref].ref for ref in pair.teachers] if method.uses_teachers else [],
+                    steps=self.grid.steps,
                     seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, options=method.options,
                     compile_loss=self.grid.compile_loss,
                 )

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -206,11 +206,20 @@ class PairSummary:
 
 
 @dataclass(frozen=True)
+class TeacherVersion:
+    ref: str  # name@vN
+    sha256: str
+    runs: list[str]  # the study's runs that trained with it
+
+
+@dataclass(frozen=True)
 class StudySummary:
     grid: Grid
     pairs: list[PairSummary]
     left_out: list[str]  # completed runs whose files could not be used, each with the reason
     cells: list[tuple[str, str, Run | None]]  # (cell key, run id, the run if the registry has it)
+    # each teacher reference of the grid → the versions the study's runs used (more than one: a mix)
+    teachers: dict[str, list[TeacherVersion]] = field(default_factory=dict)
 
 
 def _mark_indices(marks: list[int], steps: np.ndarray | None) -> dict[int, int]:
@@ -265,4 +274,24 @@ def summarise(grid: Grid, cell_runs: dict[str, str], run_of: RunOf) -> StudySumm
         comparisons = compare_methods({m.name: m.per_seed for m in methods if m.runs})
         pairs.append(PairSummary(pair.name, file_slug(pair.name), marks, labels, methods, comparisons))
     cells = [(key, run_id, run_of(key)) for key, run_id in cell_runs.items()]
-    return StudySummary(grid, pairs, left_out, cells)
+    return StudySummary(grid, pairs, left_out, cells, teacher_versions(grid, {key: run for key, _, run in cells}))
+
+
+def teacher_versions(grid: Grid, run_of_cell: dict[str, Run | None]) -> dict[str, list[TeacherVersion]]:
+    """Which teacher version each of the grid's references meant, run by run (grid order, then run order)."""
+    used: dict[str, dict[str, TeacherVersion]] = {}
+    seen: set[str] = set()
+    for pair in grid.pairs:
+        for method in grid.methods:
+            if not method.uses_teachers:
+                continue
+            for seed in grid.seeds:
+                run = run_of_cell.get(cell_key(pair, method, seed))
+                if run is None or run.id in seen:
+                    continue
+                seen.add(run.id)
+                for ref, teacher in zip(pair.teachers, run.card.teachers, strict=False):
+                    version = f"{teacher.name}@v{teacher.version}"
+                    entry = used.setdefault(ref, {}).setdefault(version, TeacherVersion(version, teacher.sha256, []))
+                    entry.runs.append(run.id)
+    return {ref: list(versions.values()) for ref, versions in used.items()}
