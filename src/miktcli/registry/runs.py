@@ -190,19 +190,28 @@ class Run:
         return card, tensors
 
 
+_last_created: dict[Path, int] = {}  # runs folder → the number of the run this process created last there
+
+
 def create_run(registry: Path, **fields: Any) -> Run:
     """Allocate the next runN atomically (mkdir fails if another process took it)."""
     root = runs_dir(registry)
     root.mkdir(parents=True, exist_ok=True)
-    while True:
+    # The folder this process created last, while it is still there: listing the registry for every new run
+    # made preparing a study's N cells quadratic in N. Another process's newer runs only cost a retry each.
+    number = _last_created.get(root.resolve())
+    if number is None or not (root / f"run{number}").is_dir():
         ids = run_ids(registry)
-        number = int(ids[-1][3:]) + 1 if ids else 1
+        number = int(ids[-1][3:]) if ids else 0
+    while True:
+        number += 1
         path = root / f"run{number}"
         try:
             path.mkdir()
             break
         except FileExistsError:
             continue
+    _last_created[root.resolve()] = number
     stamp = now()
     card = RunCard(run_id=path.name, status="created", created=stamp, updated=stamp, **fields)
     run = Run(path, card)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import json
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -48,6 +49,7 @@ def cell_mismatch(run: Run, pair: PairSpec, method: MethodSpec, seed: int, steps
     return None
 
 
+STATE_WRITE_EVERY_S = 1.0  # while preparing: state.json at most this often (and at the end), not per cell
 LOCK_FILE = ".lock"  # in the study folder: held by the one process driving the study (see Study.driving)
 
 
@@ -119,8 +121,12 @@ class Study:
                             hint="restore it, or move it away to start the study afresh")
         return cells
 
-    def _remember(self, key: str, run_id: str) -> None:
+    def _remember(self, key: str, run_id: str, write: bool = True) -> None:
         self.cells[key] = run_id
+        if write:
+            self._write_state()
+
+    def _write_state(self) -> None:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         write_text_atomic(self.state_path, json.dumps(self.cells, indent=2, ensure_ascii=False))
 
@@ -233,26 +239,46 @@ class Study:
                             hint="is this the study's registry? Restore its runs (benchmarks/snapshot_study.py "
                                  "--restore), or pass --retrain-missing to train those cells afresh")
         self._pin_teachers()
-        cells = []
-        for pair, method, seed in self.distinct_cells():
-            key = cell_key(pair, method, seed)
-            run = self.run_of(key)
-            if run is None:
-                run = start_transfer(
-                    self.registry, to=pair.to, method=method.method,
-                    teacher_refs=[self.pins[ref].ref for ref in pair.teachers] if method.uses_teachers else [],
-                    steps=self.grid.steps,
-                    seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, options=method.options,
-                    compile_loss=self.grid.compile_loss,
-                )
-                self._remember(key, run.id)
-            elif (run.card.status in ("running", "interrupted") and run.card.steps_done == 0
-                  and not run.checkpoint_path.exists() and lock_owner(run) is None):
-                # never trained, but marked running (prepared before the `created` status) or interrupted
-                # (an older Ray driver marked every cell it held)
-                run.save_card(status="created")
-            cells.append((key, run))
+        cells: list[tuple[str, Run]] = []
+        # state.json is rewritten whole, so writing it per new cell made preparing N cells quadratic in N; it is
+        # written every STATE_WRITE_EVERY_S and at the end, also on an error or Ctrl-C. Only a kill in between
+        # leaves up to that long's runs unnamed (created, never trained: a restart prepares those cells anew).
+        unwritten, written_at = False, time.monotonic()
+        try:
+            for pair, method, seed in self.distinct_cells():
+                if self._prepare_cell(pair, method, seed, command, cells):
+                    unwritten = True
+                    if time.monotonic() - written_at >= STATE_WRITE_EVERY_S:
+                        self._write_state()
+                        unwritten, written_at = False, time.monotonic()
+        finally:
+            if unwritten:
+                self._write_state()
         return cells
+
+    def _prepare_cell(self, pair: PairSpec, method: MethodSpec, seed: int, command: str,
+                      cells: list[tuple[str, Run]]) -> bool:
+        """Append (cell, run) to `cells`, creating the run when the cell has none; whether it created one."""
+        created = False
+        key = cell_key(pair, method, seed)
+        run = self.run_of(key)
+        if run is None:
+            run = start_transfer(
+                self.registry, to=pair.to, method=method.method,
+                teacher_refs=[self.pins[ref].ref for ref in pair.teachers] if method.uses_teachers else [],
+                steps=self.grid.steps,
+                seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, options=method.options,
+                compile_loss=self.grid.compile_loss,
+            )
+            self._remember(key, run.id, write=False)
+            created = True
+        elif (run.card.status in ("running", "interrupted") and run.card.steps_done == 0
+              and not run.checkpoint_path.exists() and lock_owner(run) is None):
+            # never trained, but marked running (prepared before the `created` status) or interrupted
+            # (an older Ray driver marked every cell it held)
+            run.save_card(status="created")
+        cells.append((key, run))
+        return created
 
     def report(self) -> Report:
         """Aggregate whatever has finished into results.md, summary.json and plots (see studies.report)."""
