@@ -105,6 +105,10 @@ def study(
     st = Study(grid, out or Path("benchmarks/results") / grid.name, registry)
     if report_only:
         st.check_envs()  # the other branches check it before any cell is created
+        if not st.cells:  # an empty report would pass for a study without results
+            why = f"{st.state_path.name} names no cell" if st.state_path.is_file() else f"no {st.state_path.name}"
+            raise MiktError(f"{st.out_dir} holds no study yet ({why}): nothing to report",
+                            hint=f"is --out right? Start the study with: mikt study {grid_file} --out {st.out_dir}")
         _report(st)
         return
     with st.driving():  # one driver per study folder, from its first prepared cell to its report
