@@ -97,7 +97,28 @@ def import_command(
             raise MiktError(f"{path}: cannot tell the format from the name", hint="pass --format sb3 or cleanrl")
     card = import_teacher(registry, path, fmt=fmt, env=env, name=name, obs_stats=obs_stats)
     err.print(f"imported {path.name} ({fmt}, {card.activation}, hidden {card.pi_hidden}) as {card.ref}")
+    _warn_if_shadowing(registry, card, fmt)
     print_data(card.ref)
+
+
+def _warn_if_shadowing(registry: Path, card, fmt: str) -> None:
+    """An import under a name that has versions (the default name is the env's, that of the shipped teachers)
+    changes what that name means without a version: grids (`from = ["hopper"]`), transfers and evals."""
+    from miktcli.workflows.teacher import shadowed_teacher
+
+    try:
+        older = shadowed_teacher(registry, card)
+    except MiktError as e:
+        err.print(f"warning: {card.ref} is now what `{card.name}` means; its previous version is unreadable: {e}")
+        return
+    if older is None:
+        return
+    made = (f"imported from {older.imported_from.get('format', '?')}" if older.imported_from
+            else f"trained by mikt, {older.steps:,} steps")
+    err.print(f"warning: {card.ref} (imported from {fmt}) is now what `{card.name}` means, in place of {older.ref} "
+              f"({made}): grids, transfers and evals that name `{card.name}` without a version get this import; "
+              f"name {older.ref} to keep it, or import under another --name (a study started before keeps its "
+              "pinned version)")
 
 
 def _teacher_rows(reg: Path) -> list[dict]:

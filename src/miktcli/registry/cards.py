@@ -37,6 +37,14 @@ def now() -> dt.datetime:
 
 
 def package_versions() -> dict[str, str]:
+    """The versions of the packages this process runs (a copy: callers keep it in cards)."""
+    return dict(_package_versions())
+
+
+@functools.cache
+def _package_versions() -> dict[str, str]:
+    # Read once per process, as code_version: the packages a process runs are those it imported at the start,
+    # and reading their metadata (~10 ms each time) was most of the cost of preparing a large study's cells.
     versions = {}
     for pkg in ("mikt", "torch", "gymnasium", "mujoco", "numpy", "safetensors"):
         try:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import tomllib
+from collections import Counter
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -11,6 +12,11 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from miktcli import compat
 from miktcli.errors import MiktError, describe_validation_error
 from miktcli.methods import get_method, transfer_methods
+
+# A grid's size limits. Every cell is a run folder and a line of state.json and results.md; beyond these a
+# grid is a mistake (a seed range typed wrong), and preparing it would take minutes before any cell trains.
+MAX_GRID_CELLS = 10_000  # pairs × methods × seeds
+MAX_GRID_FILE_BYTES = 1024 * 1024  # the TOML file; the committed grids are under 2 kB
 
 
 class PairSpec(BaseModel):
@@ -81,6 +87,10 @@ class Grid(BaseModel):
 
     @model_validator(mode="after")
     def _no_duplicates(self) -> Grid:
+        cells = len(self.pairs) * len(self.methods) * len(self.seeds)
+        if cells > MAX_GRID_CELLS:
+            raise ValueError(f"{cells:,} cells ({len(self.pairs):,} pair(s) × {len(self.methods):,} method(s) × "
+                             f"{len(self.seeds):,} seed(s)); a grid holds at most {MAX_GRID_CELLS:,}")
         # Two methods of one name would share cells and overwrite each other; so would two equal pairs.
         # Report files are named by slugs, so names that differ only in punctuation would overwrite each other.
         for what, keys in (("method name", [m.name for m in self.methods]),
@@ -89,7 +99,7 @@ class Grid(BaseModel):
                            ("pair label", [p.name for p in self.pairs]),
                            ("pair label (as a file name)", [file_slug(p.name) for p in self.pairs]),
                            ("seed", [str(s) for s in self.seeds])):
-            dupes = sorted({k for k in keys if keys.count(k) > 1})
+            dupes = sorted(k for k, n in Counter(keys).items() if n > 1)  # linear: 100,000 seeds took minutes
             if dupes:
                 raise ValueError(f"duplicate {what}: {', '.join(dupes)}")
         beyond = [m for m in self.marks if not 0 < m <= self.steps]
@@ -102,7 +112,11 @@ class Grid(BaseModel):
 
 def load_grid(path: Path) -> Grid:
     try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        with open(path, "rb") as f:
+            raw = f.read(MAX_GRID_FILE_BYTES + 1)  # never more than the limit, whatever the file (/dev/zero)
+        if len(raw) > MAX_GRID_FILE_BYTES:
+            raise MiktError(f"{path}: a grid file holds at most {MAX_GRID_FILE_BYTES:,} bytes; this one is larger")
+        data = tomllib.loads(raw.decode("utf-8"))
         return Grid.model_validate(data)
     except FileNotFoundError:
         raise MiktError(f"grid file {path} not found") from None

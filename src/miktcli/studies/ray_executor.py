@@ -17,10 +17,12 @@ import hashlib
 import json
 import os
 import signal
+import socket
 import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,6 +42,9 @@ MAX_ATTEMPTS = 3  # tries of one chunk when workers die under it
 # (counted from 0 in this driver session) kill its worker outright, to prove the cell is sent again.
 FAULT_ENV = "MIKT_RAY_FAULT"
 ENV_FORWARD = ("MUJOCO_GL", "PYOPENGL_PLATFORM", "MIKT_ENVSPECS")
+# How long `--address` may take to accept a connection. Ray itself retries a dead address for minutes,
+# printing its log lines, so the address is tried first, before any cell is prepared.
+RAY_CONNECT_TIMEOUT_S = 10.0
 
 
 @dataclass
@@ -153,14 +158,50 @@ def _restore_sigterm(handler: Any) -> None:
         signal.signal(signal.SIGTERM, handler)
 
 
+def _host_port(address: str) -> tuple[str, int]:
+    """The host and port of `auto` (the cluster `ray start` recorded on this machine) or HOST:PORT."""
+    shown = address
+    if address == "auto":
+        from ray._private.services import canonicalize_bootstrap_address_or_die
+
+        try:
+            address = canonicalize_bootstrap_address_or_die("auto")
+        except (ConnectionError, ValueError) as err:
+            reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            raise MiktError(f"no Ray cluster answers at auto: {reason}",
+                            hint="start one with `ray start --head`, or pass its HOST:PORT") from None
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536 or any(c.isspace() for c in host):
+        raise MiktError(f"--address {shown!r}: expected auto or HOST:PORT (e.g. 10.0.0.5:6379)")
+    return host.strip("[]"), int(port)
+
+
+def check_address(address: str) -> None:
+    """A cluster must accept a connection at `address` within RAY_CONNECT_TIMEOUT_S; else one line."""
+    host, port = _host_port(address)
+    try:
+        socket.create_connection((host, port), timeout=RAY_CONNECT_TIMEOUT_S).close()
+    except TimeoutError:
+        reason = f"no answer within {RAY_CONNECT_TIMEOUT_S:g} s"
+    except OSError as err:
+        reason = err.strerror or type(err).__name__
+    else:
+        return
+    where = address if address == f"{host}:{port}" else f"{address} ({host}:{port})"
+    raise MiktError(f"no Ray cluster answers at {where}: {reason}",
+                    hint="start one with `ray start --head`, then pass --address auto (or its HOST:PORT)")
+
+
 def _connect(ray, workers: int | None, address: str | None, env_vars: dict[str, str]) -> None:
-    """Join the cluster at `address`, or start a local instance with `workers` CPUs (unless one is running)."""
+    """Join the cluster at `address`, or start a local instance with `workers` CPUs."""
+    if address is not None:
+        check_address(address)
     sigterm_before = signal.getsignal(signal.SIGTERM)
     try:
         if address is not None:
             ray.init(address=address, runtime_env={"env_vars": env_vars}, logging_level="ERROR",
                      log_to_driver=False)
-        elif not ray.is_initialized():
+        else:
             # Ray starts its workers at niceness 15; here they *are* the work, so they compete as equals.
             os.environ.setdefault("RAY_worker_niceness", "0")
             ray.init(num_cpus=workers, include_dashboard=False, runtime_env={"env_vars": env_vars},
@@ -170,6 +211,24 @@ def _connect(ray, workers: int | None, address: str | None, env_vars: dict[str, 
                         hint="for a cluster, start it with `ray start --head` and pass --address auto") from None
     finally:
         _restore_sigterm(sigterm_before)
+
+
+@contextmanager
+def ray_session(workers: int | None, address: str | None) -> Iterator[Any]:
+    """Ray, connected for the block: the cluster at `address`, or a local instance with `workers` CPUs that
+    is stopped at the end. Inside another session (or with Ray already initialised) it is that one."""
+    ray = require_ray()
+    if ray.is_initialized():
+        yield ray
+        return
+    env_vars = {k: os.environ[k] for k in ENV_FORWARD if k in os.environ}
+    env_vars.update({"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MIKT_THREADS": "1"})
+    _connect(ray, workers, address, env_vars)
+    try:
+        yield ray
+    finally:
+        if address is None and ray.is_initialized():
+            ray.shutdown()
 
 
 class RayDriver:
@@ -280,22 +339,17 @@ def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: i
     """Train the unfinished `cells` on Ray; yields each cell's progress when it completes or fails.
 
     Starts a local Ray instance with `workers` CPUs (and stops it after) unless `address` names a running
-    cluster. Ctrl-C cancels the tasks and leaves every cell resumable from its last handed-back chunk."""
-    ray = require_ray()
-    env_vars = {k: os.environ[k] for k in ENV_FORWARD if k in os.environ}
-    env_vars.update({"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MIKT_THREADS": "1"})
-    started_here = not ray.is_initialized() and address is None
-    _connect(ray, workers, address, env_vars)
-    capacity = max(1, int(ray.cluster_resources().get("CPU", workers or 1)))
-    driver = RayDriver(ray, registry, cells, capacity=capacity, eval_episodes=eval_episodes,
-                       chunk_iterations=chunk_iterations)
-    try:
-        driver.lock_all()
-        yield from driver.run(on_progress)
-    except KeyboardInterrupt:
-        driver.cancel()
-        raise
-    finally:
-        driver.release()
-        if started_here and ray.is_initialized():
-            ray.shutdown()
+    cluster, or a `ray_session` around the call is connected already. Ctrl-C cancels the tasks and leaves
+    every cell resumable from its last handed-back chunk."""
+    with ray_session(workers, address) as ray:
+        capacity = max(1, int(ray.cluster_resources().get("CPU", workers or 1)))
+        driver = RayDriver(ray, registry, cells, capacity=capacity, eval_episodes=eval_episodes,
+                           chunk_iterations=chunk_iterations)
+        try:
+            driver.lock_all()
+            yield from driver.run(on_progress)
+        except KeyboardInterrupt:
+            driver.cancel()
+            raise
+        finally:
+            driver.release()

@@ -87,6 +87,11 @@ def _intro(summary: StudySummary) -> list[str]:
     if summary.left_out:  # said at the top: these runs finished but their numbers are in no table below
         lines += ["**Completed runs left out** (their files are incomplete; restore them from a snapshot or "
                   "train the cells again):", "", *(f"- {problem}" for problem in summary.left_out), ""]
+    failed = [(key, run_id, run.card.error or "no error recorded") for key, run_id, run in summary.cells
+              if run is not None and run.card.status == "failed"]
+    if failed:  # also at the top: a study with a failed cell is not finished, whatever its tables show
+        lines += ["**Failed cells** (their runs stopped with an error; running the study again retries them):", "",
+                  *(f"- {key}: {run_id}: {error}" for key, run_id, error in failed), ""]
     if draws_summary(summary):
         lines += [f"![every pair]({SUMMARY_FIGURE})", ""]
     return lines + [
@@ -97,7 +102,25 @@ def _intro(summary: StudySummary) -> list[str]:
         "the curve per step); *final eval* is the teacher-free student, deterministic, on fresh seeds. "
         f"*¾ of {g.baseline} final* is the level a quarter of |final| below the baseline's final return "
         "(0.75 × final when it is positive).",
-        ""]
+        "", *_teacher_lines(summary)]
+
+
+def _teacher_lines(summary: StudySummary) -> list[str]:
+    """Which teacher version each grid reference meant: one per reference (pinned when the study was first
+    prepared), or every version where a study prepared before pinning mixed them."""
+    if not summary.teachers:
+        return []
+    parts = []
+    for ref, versions in summary.teachers.items():
+        if len(versions) == 1:
+            parts.append(f"`{ref}` → {versions[0].ref} (sha256 {versions[0].sha256[:12]})")
+            continue
+        described = []
+        for v in versions:
+            runs = ", ".join(v.runs[:5]) + (f" and {len(v.runs) - 5} more" if len(v.runs) > 5 else "")
+            described.append(f"{v.ref} (sha256 {v.sha256[:12]}; {runs})")
+        parts.append(f"`{ref}` → **mixed versions**: " + ", ".join(described))
+    return ["Teachers: " + "; ".join(parts) + ".", ""]
 
 
 def _runs_section(summary: StudySummary) -> list[str]:

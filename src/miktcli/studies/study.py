@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import functools
 import json
-import os
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from miktcli import compat
@@ -18,9 +20,11 @@ from miktcli.envs.spec import load_spec
 from miktcli.errors import MiktError
 from miktcli.registry.cards import TeacherRef
 from miktcli.registry.files import write_text_atomic
-from miktcli.registry.runs import Run, lock_owner, open_run, runs_dir
+from miktcli.registry.locks import FileLock, lock_holder
+from miktcli.registry.runs import RUN_RE, Run, lock_owner, open_run, runs_dir
 from miktcli.registry.teachers import REF_RE, resolve
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key
+from miktcli.studies.pins import PINS_FILE, Pin, check_pin, pin_now, read_pins, write_pins
 from miktcli.studies.report import Report, write_report
 from miktcli.workflows.session import whole_rollouts
 from miktcli.workflows.transfer import start_transfer
@@ -46,12 +50,57 @@ def cell_mismatch(run: Run, pair: PairSpec, method: MethodSpec, seed: int, steps
     return None
 
 
+STATE_WRITE_EVERY_S = 1.0  # while preparing: state.json at most this often (and at the end), not per cell
+LOCK_FILE = ".lock"  # in the study folder: held by the one process driving the study (see Study.driving)
+
+
 class Study:
     def __init__(self, grid: Grid, out_dir: Path, registry: Path):
         self.grid, self.out_dir, self.registry = grid, Path(out_dir), Path(registry)
         self.state_path = self.out_dir / "state.json"
-        self.cells: dict[str, str] = compat.adopt_cells(self._read_state(), (
+        self.lock = FileLock(self.out_dir / LOCK_FILE)
+        self._driving = 0  # depth of `driving()` blocks: the lock is kept until the outermost one ends
+        self.pins_path = self.out_dir / PINS_FILE
+        self.pins: dict[str, Pin] = {}
+        self.new_pins: list[tuple[str, Pin]] = []  # (grid reference, pin) pinned by the last `prepare`
+        self.cells: dict[str, str] = {}
+        self._load_state()
+
+    def _load_state(self) -> None:
+        # the runs of a state.json written by mikt 0.1 are adopted under today's keys
+        self.cells = compat.adopt_cells(self._read_state(), (
             (cell_key(p, m, s), compat.cell_key(p.teachers, p.to, m.name, s)) for p, m, s in self.plan()))
+
+    @contextmanager
+    def driving(self) -> Iterator[Study]:
+        """Drive the study: the first `prepare` inside takes the study folder's lock, and it is kept until the
+        block ends, so that no second driver trains the same cells (two drivers each trained every cell, and
+        state.json and results.md then named different runs). Reading the folder (`report`) needs no lock."""
+        self._driving += 1
+        try:
+            yield self
+        finally:
+            self._driving -= 1
+            if not self._driving:
+                self.lock.release()
+
+    def _take_lock(self) -> None:
+        """The study folder's lock, then state.json as it is now (another driver may have written it since
+        this object read it)."""
+        if self.lock.held:
+            return
+        try:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+            taken = self.lock.try_acquire()  # creates a file: also the check that the folder is writable
+        except OSError as err:  # before any run exists: else each try leaves one behind
+            raise MiktError(f"cannot write the study's results to {self.out_dir}: {err.strerror or err}",
+                            hint="choose another --out") from None
+        if not taken:
+            owner = lock_holder(self.lock.path)
+            raise MiktError(f"{self.out_dir} is driven by another `mikt study` (pid {owner if owner else '?'})",
+                            hint="wait for it to end, or stop it (Ctrl-C or SIGTERM) and start again; "
+                                 "--report-only reads the folder meanwhile")
+        self._load_state()
 
     @functools.cached_property
     def _cell_of(self) -> dict[str, tuple[PairSpec, MethodSpec, int]]:
@@ -70,8 +119,12 @@ class Study:
                             hint="restore it, or move it away to start the study afresh")
         return cells
 
-    def _remember(self, key: str, run_id: str) -> None:
+    def _remember(self, key: str, run_id: str, write: bool = True) -> None:
         self.cells[key] = run_id
+        if write:
+            self._write_state()
+
+    def _write_state(self) -> None:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         write_text_atomic(self.state_path, json.dumps(self.cells, indent=2, ensure_ascii=False))
 
@@ -95,12 +148,52 @@ class Study:
             except MiktError as err:
                 raise MiktError(f"grid '{self.grid.name}', pair {pair.name}: {err}", hint=err.hint) from err
 
+    def teacher_refs(self) -> list[str]:
+        """Every teacher reference of the grid that a cell trains with, once each, in grid order."""
+        if not any(m.uses_teachers for m in self.grid.methods):
+            return []
+        return list(dict.fromkeys(ref for pair in self.grid.pairs for ref in pair.teachers))
+
     def check_teachers(self) -> None:
         """Every teacher the grid names must exist before the first cell trains."""
-        for pair in self.grid.pairs:
-            if any(m.uses_teachers for m in self.grid.methods):
-                for ref in pair.teachers:
-                    resolve(self.registry, ref)
+        for ref in self.teacher_refs():
+            resolve(self.registry, ref)
+
+    def _pin_teachers(self) -> None:
+        """Each teacher reference → one version for the whole study (studies.pins): the pin of teachers.json,
+        else the version the study's earliest run used (a study prepared before pins existed), else the version
+        the reference means now. Checked against this registry's files before any cell is created."""
+        self.pins, self.new_pins = read_pins(self.pins_path), []
+        missing = [ref for ref in self.teacher_refs() if ref not in self.pins]
+        used = self._versions_used(missing) if missing else {}
+        for ref in missing:
+            pin = used.get(ref) or pin_now(self.registry, ref)
+            self.pins[ref] = pin
+            self.new_pins.append((ref, pin))
+        for ref in self.teacher_refs():
+            check_pin(self.registry, self.pins_path, ref, self.pins[ref])
+        if self.new_pins:
+            write_pins(self.pins_path, self.pins)
+
+    def _versions_used(self, refs: list[str]) -> dict[str, Pin]:
+        """For each reference, the teacher the study's earliest-created run trained with, where one did."""
+        used: dict[str, Pin] = {}
+        def created(cell_run: tuple[str, str]) -> int:
+            m = RUN_RE.fullmatch(cell_run[1])
+            return int(m.group(1)) if m else 0
+
+        for key, run_id in sorted(self.cells.items(), key=created):
+            cell = self._cell_of.get(key)
+            if cell is None or not cell[1].uses_teachers or not (runs_dir(self.registry) / run_id).is_dir():
+                continue
+            try:
+                teachers = open_run(self.registry, run_id).card.teachers
+            except MiktError:
+                continue  # run_of names what is wrong with it when the cell is reached
+            for ref, teacher in zip(cell[0].teachers, teachers, strict=False):
+                if ref in refs and ref not in used and names_teacher(ref, teacher):
+                    used[ref] = Pin(ref=f"{teacher.name}@v{teacher.version}", sha256=teacher.sha256)
+        return used
 
     def run_of(self, key: str) -> Run | None:
         """The run state.json names for a cell; None when it names none or the registry has no such run (the
@@ -132,35 +225,58 @@ class Study:
         cause is the wrong registry, where retraining would re-point state.json away from the real runs."""
         self.check_envs()
         self.check_teachers()
-        self.out_dir.mkdir(parents=True, exist_ok=True)
-        if not os.access(self.out_dir, os.W_OK):  # before any run exists: else each try leaves one behind
-            raise MiktError(f"cannot write the study's results to {self.out_dir} (read-only or no permission)",
-                            hint="choose another --out")
+        with self.driving():
+            self._take_lock()
+            return self._prepare_cells(command, retrain_missing)
+
+    def _prepare_cells(self, command: str, retrain_missing: bool) -> list[tuple[str, Run]]:
         missing = self.missing_runs()
         if missing and not retrain_missing:
             ids = ", ".join(run_id for _, run_id in missing[:5]) + (" …" if len(missing) > 5 else "")
             raise MiktError(f"{self.state_path} names {len(missing)} run(s) that {self.registry} lacks: {ids}",
                             hint="is this the study's registry? Restore its runs (benchmarks/snapshot_study.py "
                                  "--restore), or pass --retrain-missing to train those cells afresh")
-        cells = []
-        for pair, method, seed in self.distinct_cells():
-            key = cell_key(pair, method, seed)
-            run = self.run_of(key)
-            if run is None:
-                run = start_transfer(
-                    self.registry, to=pair.to, method=method.method,
-                    teacher_refs=pair.teachers if method.uses_teachers else [], steps=self.grid.steps,
-                    seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, options=method.options,
-                    compile_loss=self.grid.compile_loss,
-                )
-                self._remember(key, run.id)
-            elif (run.card.status in ("running", "interrupted") and run.card.steps_done == 0
-                  and not run.checkpoint_path.exists() and lock_owner(run) is None):
-                # never trained, but marked running (prepared before the `created` status) or interrupted
-                # (an older Ray driver marked every cell it held)
-                run.save_card(status="created")
-            cells.append((key, run))
+        self._pin_teachers()
+        cells: list[tuple[str, Run]] = []
+        # state.json is rewritten whole, so writing it per new cell made preparing N cells quadratic in N; it is
+        # written every STATE_WRITE_EVERY_S and at the end, also on an error or Ctrl-C. Only a kill in between
+        # leaves up to that long's runs unnamed (created, never trained: a restart prepares those cells anew).
+        unwritten, written_at = False, time.monotonic()
+        try:
+            for pair, method, seed in self.distinct_cells():
+                if self._prepare_cell(pair, method, seed, command, cells):
+                    unwritten = True
+                    if time.monotonic() - written_at >= STATE_WRITE_EVERY_S:
+                        self._write_state()
+                        unwritten, written_at = False, time.monotonic()
+        finally:
+            if unwritten:
+                self._write_state()
         return cells
+
+    def _prepare_cell(self, pair: PairSpec, method: MethodSpec, seed: int, command: str,
+                      cells: list[tuple[str, Run]]) -> bool:
+        """Append (cell, run) to `cells`, creating the run when the cell has none; whether it created one."""
+        created = False
+        key = cell_key(pair, method, seed)
+        run = self.run_of(key)
+        if run is None:
+            run = start_transfer(
+                self.registry, to=pair.to, method=method.method,
+                teacher_refs=[self.pins[ref].ref for ref in pair.teachers] if method.uses_teachers else [],
+                steps=self.grid.steps,
+                seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, options=method.options,
+                compile_loss=self.grid.compile_loss,
+            )
+            self._remember(key, run.id, write=False)
+            created = True
+        elif (run.card.status in ("running", "interrupted") and run.card.steps_done == 0
+              and not run.checkpoint_path.exists() and lock_owner(run) is None):
+            # never trained, but marked running (prepared before the `created` status) or interrupted
+            # (an older Ray driver marked every cell it held)
+            run.save_card(status="created")
+        cells.append((key, run))
+        return created
 
     def report(self) -> Report:
         """Aggregate whatever has finished into results.md, summary.json and plots (see studies.report)."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -46,44 +46,73 @@ def mean_pm_std(values) -> str:
 
 
 def unusable(run: Run, rows: list[dict[str, Any]]) -> str | None:
-    """Why a completed run's files cannot stand in the report, or None. Its curve must reach the steps its
-    card says it trained, line for line, and its card must hold the teacher-free eval: a metrics file cut
-    short or edited would otherwise shift every mark and mean without a word."""
+    """Why a completed run's files cannot stand in the report, or None. Its curve must hold one row for each
+    iteration its card says it trained, at that iteration's step, and its card must hold the teacher-free eval:
+    a metrics file cut short, with rows lost at its start or in its middle (a run folder deleted while its
+    cell trained is recreated by the next checkpoint), or edited, would otherwise shift every mark and mean
+    without a word."""
     evaluated = run.card.result.get("eval_without_teacher")
     if not (isinstance(evaluated, dict) and isinstance(evaluated.get("return_mean"), int | float)):
         return f"{run.id}: its card has no teacher-free eval result"
+    name = run.metrics_path.name
     if run.damaged_metric_lines:
-        return f"{run.id}: {run.damaged_metric_lines} damaged line(s) in {run.metrics_path.name}"
-    if not rows or rows[-1]["steps"] != run.card.steps_done:
+        return f"{run.id}: {run.damaged_metric_lines} damaged line(s) in {name}"
+    done = run.card.steps_done
+    if not rows or rows[-1]["steps"] != done:
         ends = f"ends at {rows[-1]['steps']:,} steps" if rows else "is empty"
-        return f"{run.id}: {run.metrics_path.name} {ends}, the run trained {run.card.steps_done:,}"
-    return None
+        return f"{run.id}: {name} {ends}, the run trained {done:,}"
+    batch = run.card.config.ppo.batch_size
+    steps = [r["steps"] for r in rows]
+    expected = list(range(batch, done + 1, batch))
+    if steps == expected:
+        return None
+    off = next((s for s in steps if s <= 0 or s % batch), None)
+    if off is not None:
+        return (f"{run.id}: {name} has a row at {off:,} steps, which is not one of its iterations "
+                f"(every {batch:,} steps)")
+    missing = sorted(set(expected) - set(steps))
+    if missing:
+        return (f"{run.id}: {name} lacks {len(missing)} of its {len(expected)} iterations' rows "
+                f"(the first missing at {missing[0]:,} steps)")
+    return f"{run.id}: {name} holds its iterations' rows more than once or out of order"
 
 
 def completed_curves(grid: Grid, run_of: RunOf, pair: PairSpec, method: MethodSpec,
                      left_out: list[str] | None = None) -> tuple[list[Run], np.ndarray, np.ndarray]:
     """Completed runs of a cell group and their return curves on the common iteration grid. A completed run
     whose files are incomplete is left out of both, with the reason appended to `left_out`."""
-    runs, curves = [], []
+    runs, curves, shared = [], [], set()
     for seed in grid.seeds:
         run = run_of(cell_key(pair, method, seed))
         if run is None or run.card.status != "completed":
             continue
         rows = run.read_metrics()
         problem = unusable(run, rows)
+        if problem is None and runs and not shared & {r["steps"] for r in rows}:
+            # another rollout size whose iterations never coincide with the others': nothing to average
+            problem = (f"{run.id}: logs every {run.card.config.ppo.batch_size:,} steps, at none of the steps "
+                       f"{runs[0].id} logs at")
         if problem:
             if left_out is not None and problem not in left_out:
                 left_out.append(problem)
             continue
         runs.append(run)
         curves.append([(r["steps"], np.nan if r["return_mean"] is None else r["return_mean"]) for r in rows])
+        shared = {s for s, _ in curves[-1]} if len(runs) == 1 else shared & {s for s, _ in curves[-1]}
     if not curves:
         return [], np.zeros(0), np.zeros((0, 0))
-    # Runs of one grid share the rollout size, so their curves have the same steps; a shorter one (another
-    # batch size) would be cut to the common part, never stretched.
-    length = min(len(c) for c in curves)
-    steps = np.array([s for s, _ in curves[0][:length]])
-    return runs, steps, np.array([[v for _, v in c[:length]] for c in curves])
+    steps, values = align_by_step(curves)
+    return runs, steps, values
+
+
+def align_by_step(curves: list[list[tuple[int, float]]]) -> tuple[np.ndarray, np.ndarray]:
+    """The curves at the steps they all logged, one row per curve. Runs of one grid usually log at the same
+    steps; runs of another rollout size meet where their iterations coincide. By step, never by row index:
+    the n-th row of one run need not be the n-th of another."""
+    shared = sorted(set.intersection(*(set(s for s, _ in c) for c in curves)))
+    at = [dict(c) for c in curves]
+    return np.array(shared, dtype=int), np.array([[a[s] for s in shared] for a in at], dtype=float).reshape(
+        len(curves), len(shared))
 
 
 def partial_seed_labels(counts: dict[str, int], seeds: int) -> dict[str, str]:
@@ -177,11 +206,20 @@ class PairSummary:
 
 
 @dataclass(frozen=True)
+class TeacherVersion:
+    ref: str  # name@vN
+    sha256: str
+    runs: list[str]  # the study's runs that trained with it
+
+
+@dataclass(frozen=True)
 class StudySummary:
     grid: Grid
     pairs: list[PairSummary]
     left_out: list[str]  # completed runs whose files could not be used, each with the reason
     cells: list[tuple[str, str, Run | None]]  # (cell key, run id, the run if the registry has it)
+    # each teacher reference of the grid → the versions the study's runs used (more than one: a mix)
+    teachers: dict[str, list[TeacherVersion]] = field(default_factory=dict)
 
 
 def _mark_indices(marks: list[int], steps: np.ndarray | None) -> dict[int, int]:
@@ -195,10 +233,10 @@ def _weights(method_name: str, runs: list[Run]) -> tuple[dict[str, float] | None
         return None, None
     keys = sorted(mixing[0])
     final = {k: float(np.mean([m[k] for m in mixing])) for k in keys}
-    rows = [r.read_metrics() for r in runs]
-    n = min(len(r) for r in rows)
-    curves = {f"{method_name} {k}": [(rows[0][i]["steps"], float(np.mean([r[i][k] for r in rows])))
-                                     for i in range(n)] for k in keys}
+    curves = {}
+    for k in keys:
+        steps, values = align_by_step([[(row["steps"], row[k]) for row in r.read_metrics()] for r in runs])
+        curves[f"{method_name} {k}"] = list(zip(steps.tolist(), values.mean(axis=0).tolist(), strict=True))
     return final, curves
 
 
@@ -236,4 +274,24 @@ def summarise(grid: Grid, cell_runs: dict[str, str], run_of: RunOf) -> StudySumm
         comparisons = compare_methods({m.name: m.per_seed for m in methods if m.runs})
         pairs.append(PairSummary(pair.name, file_slug(pair.name), marks, labels, methods, comparisons))
     cells = [(key, run_id, run_of(key)) for key, run_id in cell_runs.items()]
-    return StudySummary(grid, pairs, left_out, cells)
+    return StudySummary(grid, pairs, left_out, cells, teacher_versions(grid, {key: run for key, _, run in cells}))
+
+
+def teacher_versions(grid: Grid, run_of_cell: dict[str, Run | None]) -> dict[str, list[TeacherVersion]]:
+    """Which teacher version each of the grid's references meant, run by run (grid order, then run order)."""
+    used: dict[str, dict[str, TeacherVersion]] = {}
+    seen: set[str] = set()
+    for pair in grid.pairs:
+        for method in grid.methods:
+            if not method.uses_teachers:
+                continue
+            for seed in grid.seeds:
+                run = run_of_cell.get(cell_key(pair, method, seed))
+                if run is None or run.id in seen:
+                    continue
+                seen.add(run.id)
+                for ref, teacher in zip(pair.teachers, run.card.teachers, strict=False):
+                    version = f"{teacher.name}@v{teacher.version}"
+                    entry = used.setdefault(ref, {}).setdefault(version, TeacherVersion(version, teacher.sha256, []))
+                    entry.runs.append(run.id)
+    return {ref: list(versions.values()) for ref, versions in used.items()}

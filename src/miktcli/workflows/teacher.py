@@ -13,7 +13,7 @@ from miktcli.ppo import PPOConfig
 from miktcli.registry.cards import RunConfig, TeacherCard, code_version, now, package_versions
 from miktcli.registry.importers import read_foreign_policy
 from miktcli.registry.runs import Run
-from miktcli.registry.teachers import check_name, publish_teacher
+from miktcli.registry.teachers import check_name, publish_teacher, read_teacher_card, teachers_dir, versions
 from miktcli.workflows.session import Event, Job, Phase, check_registry_writable, new_run
 
 
@@ -78,3 +78,12 @@ def import_teacher(registry: Path, path: Path, *, fmt: str, env: str, name: str 
     )
     policy.obs_normalizer.frozen = True
     return publish_teacher(registry, card, policy)
+
+
+def shadowed_teacher(registry: Path, card: TeacherCard) -> TeacherCard | None:
+    """The version that `card` replaced as its name's latest, which references without a version (`hopper`,
+    as grids write them) meant until now; None when the name was new."""
+    older = [v for v in versions(registry, card.name) if v < card.version]
+    if not older:
+        return None
+    return read_teacher_card(teachers_dir(registry) / card.name / f"v{older[-1]}.safetensors")
