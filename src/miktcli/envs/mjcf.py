@@ -267,11 +267,21 @@ class MjcfEnv(gym.Env):
             self._camera = mujoco.MjvCamera()
             self._camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
             self._camera.trackbodyid = self.root.body
-            self._camera.distance = 2.0 * float(self.model.stat.extent)
+            self._camera.distance = 2.5 * max(1.0, self._body_size())
             self._camera.elevation = -20
             self._camera.azimuth = 90
         self._renderer.update_scene(self.data, self._camera)
         return self._renderer.render()
+
+    def _body_size(self) -> float:
+        """The robot's size (its geoms' span, the floor left out): the model's own extent includes the floor."""
+        m, d = self.model, self.data
+        mine = m.geom_bodyid > 0
+        if not mine.any():
+            return 1.0
+        low = (d.geom_xpos[mine] - m.geom_rbound[mine, None]).min(axis=0)
+        high = (d.geom_xpos[mine] + m.geom_rbound[mine, None]).max(axis=0)
+        return float((high - low).max())
 
     def close(self):
         if self._renderer is not None:
