@@ -27,6 +27,7 @@ from typing import Any
 
 import torch
 
+from miktcli.envs.spec import user_specs_dir
 from miktcli.errors import MiktError
 from miktcli.registry.files import write_bytes_atomic
 from miktcli.registry.runs import Run, RunLock, open_run
@@ -162,6 +163,8 @@ def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: i
     cluster. Ctrl-C cancels the tasks and leaves every cell resumable from its last handed-back chunk."""
     ray = require_ray()
     env_vars = {k: os.environ[k] for k in ENV_FORWARD if k in os.environ}
+    if user_specs_dir().is_dir():  # ./envspecs is relative to the driver's folder, not a worker's
+        env_vars["MIKT_ENVSPECS"] = str(user_specs_dir().resolve())
     env_vars.update({"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MIKT_THREADS": "1"})
     started_here = not ray.is_initialized() and address is None
     sigterm_before = signal.getsignal(signal.SIGTERM)
