@@ -80,8 +80,8 @@ app.add_typer(envs_cmd.app, name="envs")
 app.add_typer(teacher_cmd.app, name="teacher")
 app.command("transfer", help=transfer_cmd.HELP, no_args_is_help=True, cls=MethodOptionsCommand,
             context_settings=PASS_UNKNOWN_FLAGS)(transfer_cmd.transfer)
-app.command("eval", help=eval_cmd.HELP, no_args_is_help=True)(eval_cmd.eval_command)
-app.command("inspect", help=inspect_cmd.HELP, no_args_is_help=True)(inspect_cmd.inspect)
+app.command("eval", help=eval_cmd.HELP)(eval_cmd.eval_command)
+app.command("inspect", help=inspect_cmd.HELP)(inspect_cmd.inspect)
 app.command("runs")(runs_cmd.runs)
 app.command("study", help=study_cmd.HELP, no_args_is_help=True)(study_cmd.study)
 

@@ -9,9 +9,11 @@ import typer
 from miktcli.cli.common import DEFAULT_REGISTRY, JsonOption, RegistryOption, setup_torch
 from miktcli.cli.console import err, print_data, print_json
 
-HELP = """Evaluate a teacher (NAME or NAME@vN) or a run's student (runN).
+HELP = """Evaluate a teacher (NAME or NAME@vN) or a run's student (runN); with no target, the newest run (last).
 
 Examples:
+
+  mikt eval --render-offscreen
 
   mikt eval hopper --episodes 20
 
@@ -22,7 +24,8 @@ Examples:
 
 
 def eval_command(
-    target: str = typer.Argument(..., help="Teacher NAME or NAME@vN or runN."),
+    target: str = typer.Argument("last", help="Teacher NAME or NAME@vN, runN, or last (the newest run).",
+                                 show_default=True),
     episodes: int = typer.Option(10, "--episodes", min=1),
     seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1,
                              help="Seed of the first episode; episode i uses seed + i."),
@@ -39,6 +42,10 @@ def eval_command(
     from miktcli.workflows.evaluate import evaluate_policy, load_policy
 
     setup_torch()
+    if target == "last":  # name the newest run, so its video file and the summary say which run it was
+        from miktcli.registry.runs import open_run
+
+        target = open_run(registry, "last").id
     if seed + episodes - 1 > 2**32 - 1:
         raise typer.BadParameter(f"episode seeds run from {seed} to {seed + episodes - 1}, past 2³²−1",
                                  param_hint="'--seed'")

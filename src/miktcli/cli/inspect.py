@@ -11,9 +11,11 @@ from miktcli.cli.cards import render_card
 from miktcli.cli.common import DEFAULT_REGISTRY, JsonOption, RegistryOption
 from miktcli.cli.console import err, out, print_json
 
-HELP = """Inspect a run (runN) or a teacher (NAME or NAME@vN).
+HELP = """Inspect a run (runN) or a teacher (NAME or NAME@vN); with no target, the newest run (last).
 
 Examples:
+
+  mikt inspect --curve
 
   mikt inspect run1 --coupling
 
@@ -39,7 +41,8 @@ def _sampled(rows: list[dict], n: int) -> list[dict]:
 
 
 def inspect(
-    target: str = typer.Argument(..., help="runN or a teacher NAME or NAME@vN."),
+    target: str = typer.Argument("last", help="runN, last (the newest run) or a teacher NAME or NAME@vN.",
+                                 show_default=True),
     coupling: bool = typer.Option(False, "--coupling", help="Mixing weights p over training."),
     curve: bool = typer.Option(False, "--curve", help="The learning curve (mean return over training)."),
     plot: Path = typer.Option(None, "--plot", help="Also write the chosen view as a PNG."),
@@ -61,7 +64,8 @@ def inspect(
     if not _is_run(target):
         from miktcli.registry.teachers import load_teacher
 
-        card = load_teacher(reg, target).card.model_dump(mode="json")
+        teacher = load_teacher(reg, target)
+        card = {**teacher.card.model_dump(mode="json"), "source": teacher.source, "path": str(teacher.path)}
         print_json(card) if as_json else render_card(card)
         return
     run = open_run(reg, target)

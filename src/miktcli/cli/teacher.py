@@ -122,23 +122,21 @@ def _warn_if_shadowing(registry: Path, card, fmt: str) -> None:
 
 
 def _teacher_rows(reg: Path) -> list[dict]:
-    from miktcli.registry.cards import TeacherVersion
-    from miktcli.registry.teachers import list_names, read_teacher_card, teachers_dir, versions
+    from miktcli.registry.teachers import read_teacher_card, teacher_files
 
     rows = []
-    for name in list_names(reg):
-        for v in versions(reg, name):
-            path = teachers_dir(reg) / name / f"v{v}.safetensors"
-            stored_as = str(TeacherVersion(name, v))  # where the file lies is what `eval` and `transfer` resolve
-            try:
-                card = read_teacher_card(path)  # the header only: no weights are loaded
-                if card.ref != stored_as:
-                    raise MiktError(f"{path}: the card names {card.ref} but the file is stored as {stored_as} "
-                                    "(moved or tampered)")
-                rows.append({"ref": stored_as, "card": card.model_dump(mode="json"), "path": str(path),
-                             "error": None})
-            except MiktError as e:
-                rows.append({"ref": stored_as, "card": None, "path": str(path), "error": str(e)})
+    for f in teacher_files(reg):
+        stored_as = f.ref  # where the file lies is what `eval` and `transfer` resolve
+        source = "local (over packaged)" if f.shadows_packaged else f.source
+        try:
+            card = read_teacher_card(f.path)  # the header only: no weights are loaded
+            if card.ref != stored_as:
+                raise MiktError(f"{f.path}: the card names {card.ref} but the file is stored as {stored_as} "
+                                "(moved or tampered)")
+            rows.append({"ref": stored_as, "source": source, "card": card.model_dump(mode="json"),
+                         "path": str(f.path), "error": None})
+        except MiktError as e:
+            rows.append({"ref": stored_as, "source": source, "card": None, "path": str(f.path), "error": str(e)})
     return rows
 
 
@@ -147,7 +145,10 @@ def list_teachers(
     as_json: JsonOption = False,
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
-    """List teachers and their versions (reads file headers only)."""
+    """List teachers and their versions (reads file headers only).
+
+    `source` says where each comes from: `local` (the registry folder) or `packaged` (shipped with mikt,
+    read-only; a local file of the same name and version wins). MIKT_PACKAGED_TEACHERS=0 hides the packaged ones."""
     rows = _teacher_rows(registry)
     unreadable = sum(r["error"] is not None for r in rows)
     if as_json:
@@ -162,14 +163,15 @@ def _print_teacher_table(rows: list[dict], registry: Path) -> None:
     if not rows:
         err.print(f"no teachers in {registry}; train one with: mikt teacher train ENV")
         return
-    table = Table("teacher", "env", "obs", "act", "hidden", "steps", "final return", "created")
+    table = Table("teacher", "source", "env", "obs", "act", "hidden", "steps", "final return", "created")
     for r in rows:
         c = r["card"]
         if c is None:
-            table.add_row(r["ref"], Text(f"unreadable: {r['error']}", style="red"), "", "", "", "", "", "")
+            table.add_row(r["ref"], r["source"], Text(f"unreadable: {r['error']}", style="red"),
+                          "", "", "", "", "", "")
             continue
         ret = "—" if c["final_return"] is None else f"{c['final_return']:.1f}"
-        table.add_row(r["ref"], c["env"], str(c["obs_dim"]), str(c["act_dim"]),
+        table.add_row(r["ref"], r["source"], c["env"], str(c["obs_dim"]), str(c["act_dim"]),
                       "x".join(map(str, c["pi_hidden"])), f"{c['steps']:,}", ret, c["created"][:19])
     out.print(table)
 
@@ -180,11 +182,12 @@ def show(
     as_json: JsonOption = False,
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
-    """Show a teacher's card after verifying the file (shapes and sha256)."""
+    """Show a teacher's card after verifying the file (shapes and sha256), and where the file comes from
+    (`local` or `packaged`)."""
     from miktcli.registry.teachers import load_teacher
 
     teacher = load_teacher(registry, ref)
-    data = teacher.card.model_dump(mode="json")
+    data = {**teacher.card.model_dump(mode="json"), "source": teacher.source, "path": str(teacher.path)}
     if as_json:
         print_json(data)
     else:

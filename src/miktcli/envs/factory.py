@@ -8,10 +8,10 @@ import gymnasium as gym
 import mujoco
 
 from miktcli.envs.mujoco_warnings import capture_mujoco_warnings
-from miktcli.envs.spec import CentipedeSpec, GymnasiumSpec, load_spec, scan_specs
+from miktcli.envs.spec import AnySpec, load_spec, scan_specs
 from miktcli.errors import MiktError
 
-Spec = CentipedeSpec | GymnasiumSpec
+Spec = AnySpec
 GYM_NAMESPACE = "mikt"
 
 

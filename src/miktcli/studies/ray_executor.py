@@ -29,6 +29,7 @@ from typing import Any
 
 import torch
 
+from miktcli.envs.spec import user_specs_dir
 from miktcli.errors import MiktError
 from miktcli.registry.files import write_bytes_atomic
 from miktcli.registry.runs import Run, RunLock, open_run
@@ -222,6 +223,8 @@ def ray_session(workers: int | None, address: str | None) -> Iterator[Any]:
         yield ray
         return
     env_vars = {k: os.environ[k] for k in ENV_FORWARD if k in os.environ}
+    if user_specs_dir().is_dir():  # ./envspecs is relative to the driver's folder, not a worker's
+        env_vars["MIKT_ENVSPECS"] = str(user_specs_dir().resolve())
     env_vars.update({"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MIKT_THREADS": "1"})
     _connect(ray, workers, address, env_vars)
     try:
