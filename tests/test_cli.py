@@ -101,10 +101,16 @@ def test_end_to_end_teacher_transfer_inspect_eval(registry, tmp_path):
          {"method": "mikt", "kl_coef": 0.0, "rl_encoder_grad": False}, {"loss_mi"}, {"loss_kl"}),
         (("--from", "tiny", "--lateral", "projection"), {"method": "mikt", "lateral": "projection"},
          {"loss_mi", "loss_kl"}, set()),
-        (("--from", "tiny@v1", "--from", "tiny@v2"), {"method": "mikt", "teachers": 2}, {"p_pi_0", "loss_mi"},
-         set()),
+        (("--from", "tiny@v1", "--from", "tiny@v2"), {"method": "mikt", "teachers": 2, "mixing": "per-teacher"},
+         {"p_pi_0", "w_pi_0_t0", "w_vf_1_t1", "loss_mi"}, {"w_pi_0_shared"}),
+        (("--from", "tiny@v1", "--from", "tiny@v2", "--mixing", "shared", "--lateral", "projection"),
+         {"method": "mikt", "teachers": 2, "mixing": "shared", "lateral": "projection"},
+         {"p_pi_0", "w_pi_0_shared", "w_vf_1_shared", "loss_mi"}, {"w_pi_0_t0"}),
+        (("--from", "tiny", "--coupling-ramp", "student-weight", "--mi-log-std-min", "-11"),
+         {"method": "mikt", "coupling_ramp": "student-weight", "mi_log_std_min": -11.0}, {"loss_mi"}, set()),
     ],
-    ids=["vpg", "mlpp", "no-mi", "no-rl-grad-no-kl", "projection", "two-teachers"],
+    ids=["vpg", "mlpp", "no-mi", "no-rl-grad-no-kl", "projection", "two-teachers", "two-teachers-shared",
+         "student-weight-ramp"],
 )
 def test_methods_and_ablations_are_recorded_and_change_what_is_trained(
         registry, args, card, metrics_present, metrics_absent):

@@ -34,6 +34,8 @@ Examples:
 
   mikt transfer --from centipede-four --from hopper --to centipede-eight
 
+  mikt transfer --from centipede-four --from centipede-six --to centipede-eight --mixing shared
+
   mikt transfer --to centipede-eight --method vpg
 
   mikt transfer --from centipede-four --to centipede-eight --method mlpp
@@ -74,7 +76,7 @@ def with_flag_hint(error: MiktError) -> MiktError:
 
 # The flags that set MIKT's options (and its encoder check): meaningless for a method without options.
 MIKT_OPTIONS = {"mi", "rl_encoder_grad", "coupling_schedule", "coupling_pi_coef", "coupling_vf_coef", "mi_coef",
-                "lateral", "encoder_width"}
+                "lateral", "encoder_width", "mixing", "coupling_ramp", "mi_log_std_min"}
 
 
 def transfer(
@@ -94,6 +96,13 @@ def transfer(
     mi_coef: float = typer.Option(0.5, "--mi-coef", min=0),
     lateral: str = typer.Option(
         "identity", "--lateral", help="identity (the paper) | projection (the authors' code: learnable U per layer)."),
+    mixing: str = typer.Option(
+        "per-teacher", "--mixing",
+        help="per-teacher (the authors': one logit per teacher) | shared (CAT's: one teacher share over the sum)."),
+    coupling_ramp: str = typer.Option(
+        "coefficient", "--coupling-ramp",
+        help="coefficient (the authors': the ramp scales L_coupling) | student-weight (the ramp floors p)."),
+    mi_log_std_min: float = typer.Option(-5.0, "--mi-log-std-min", help="Clamp of q's log-std (L_MI)."),
     encoder_width: list[int] = typer.Option(
         None, "--encoder-width", help="Optional check: must equal each teacher's state dim (read from its card)."),
     hidden: str = typer.Option(None, "--hidden", help="Optional check: must equal the teachers' hidden sizes."),
@@ -123,9 +132,14 @@ def transfer(
             raise MiktError(f"unknown coupling schedule '{coupling_schedule}'; known: three-phase, constant")
         if lateral not in ("identity", "projection"):
             raise MiktError(f"unknown --lateral '{lateral}'; known: identity, projection")
+        for flag, value, known in (("--mixing", mixing, ("per-teacher", "shared")),
+                                   ("--coupling-ramp", coupling_ramp, ("coefficient", "student-weight"))):
+            if value not in known:
+                raise MiktError(f"unknown {flag} '{value}'; known: {', '.join(known)}")
         mikt = {"coupling_schedule": coupling_schedule, "coupling_pi_coef": coupling_pi_coef,
                 "coupling_vf_coef": coupling_vf_coef, "mi": mi, "mi_coef": mi_coef,
-                "rl_encoder_grad": rl_encoder_grad, "lateral": lateral}
+                "rl_encoder_grad": rl_encoder_grad, "lateral": lateral, "mixing": mixing,
+                "coupling_ramp": coupling_ramp, "mi_log_std_min": mi_log_std_min}
         if get_method(method).options is None:
             refuse_options_of_other_methods(ctx, method, MIKT_OPTIONS)
             mikt = None
