@@ -37,6 +37,8 @@ def text_plot(series: dict[str, list[tuple[float, float]]], width: int = 64, hei
     lines.append(" " * label_w + " └" + "─" * width)
     lines.append(" " * label_w + f"  {x0:,.0f}" + f"{x1:,.0f} steps".rjust(width - len(f"{x0:,.0f}")))
     legend = "  ".join(f"{m} {name}" for m, name in zip(MARKERS, series, strict=False))
+    if len(series) > len(MARKERS):  # one marker per series: say which ones the chart could not draw
+        legend += f"  (not drawn: {', '.join(list(series)[len(MARKERS):])})"
     lines.append(" " * label_w + "  " + legend)
     return "\n".join(lines)
 
