@@ -6,6 +6,7 @@ from miktcli.aggregate import (
     Estimate,
     iqm,
     iqm_estimate,
+    mean_estimate,
     normalized,
     performance_profile,
     performance_profile_estimate,
@@ -37,6 +38,9 @@ def test_iqm_interval_holds_the_point_is_seeded_and_collapses_on_constant_data()
     assert iqm_estimate(scores, n_resamples=2000, seed=4) != est
     one_run = iqm_estimate({"a": [1.0, 2.0, 3.0], "b": [10.0]}, n_resamples=200)  # a task with a single run
     assert one_run.low <= one_run.value <= one_run.high
+    mean = mean_estimate(scores, n_resamples=2000, seed=3)
+    assert mean.value == pytest.approx(np.concatenate(list(scores.values())).mean())
+    assert mean.low < mean.value < mean.high
     flat = iqm_estimate({"a": [2.0, 2.0, 2.0], "b": [2.0, 2.0]}, n_resamples=200)
     assert (flat.value, flat.low, flat.high) == pytest.approx((2.0, 2.0, 2.0))
 

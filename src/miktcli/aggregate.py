@@ -94,6 +94,18 @@ def iqm_estimate(scores: Scores, n_resamples: int = RESAMPLES, seed: int = 0,
     return Estimate(iqm(scores), float(low), float(high))
 
 
+def _pooled_mean(*samples: np.ndarray, axis: int = -1) -> np.ndarray:
+    return np.concatenate(samples, axis=axis).mean(axis=axis)
+
+
+def mean_estimate(scores: Scores, n_resamples: int = RESAMPLES, seed: int = 0,
+                  confidence: float = CONFIDENCE) -> Estimate:
+    """The mean over all runs × tasks pooled, with its stratified bootstrap interval (beside the IQM)."""
+    samples = _tasks(scores)
+    low, high = _bootstrap(samples, _pooled_mean, n_resamples, seed, confidence)
+    return Estimate(float(np.concatenate(samples).mean()), float(low), float(high))
+
+
 def _improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """U/(n_x n_y) along the last axis (vectorised over any leading resample axes)."""
     greater = x[..., :, None] > y[..., None, :]
