@@ -263,3 +263,18 @@ def test_an_unknown_target_env_is_an_error_even_for_report_only(registry, tmp_pa
         assert r.exit_code == 1, r.output
         assert "pair t → centipede-nine: unknown environment 'centipede-nine'" in r.output
     assert not (tmp_path / "o").exists() and not (registry / "runs").exists()
+
+
+def test_every_committed_grid_loads_and_its_options_validate():
+    from miktcli.methods import get_method
+    from miktcli.studies.grid import load_grid
+    from miktcli.studies.study import Study
+
+    grids = sorted((GRID.parent).glob("*.toml"))
+    assert any(g.name == "multi-screen.toml" for g in grids)
+    for path in grids:
+        grid = load_grid(path)
+        for method in grid.methods:  # what the study does before the first cell: an unknown option fails here
+            get_method(method.method).parse_options(method.options)
+        if grid.name == "multi-screen":
+            assert len(Study(grid, Path("/nonexistent"), Path("/nonexistent")).distinct_cells()) <= 16

@@ -43,7 +43,8 @@ def _sampled(rows: list[dict], n: int) -> list[dict]:
 def inspect(
     target: str = typer.Argument("last", help="runN, last (the newest run) or a teacher NAME or NAME@vN.",
                                  show_default=True),
-    coupling: bool = typer.Option(False, "--coupling", help="Mixing weights p over training."),
+    coupling: bool = typer.Option(
+        False, "--coupling", help="Every source's mixing weight (student, each teacher) per layer over training."),
     curve: bool = typer.Option(False, "--curve", help="The learning curve (mean return over training)."),
     plot: Path = typer.Option(None, "--plot", help="Also write the chosen view as a PNG."),
     rows: int = typer.Option(12, "--rows", min=2, help="Table rows to show."),
@@ -80,23 +81,33 @@ def inspect(
         err.print("Hint: --coupling for the mixing weights, --curve for the learning curve, --json for all.")
         return
     if coupling:
-        keys = [k for k in (metrics[0] if metrics else {}) if k.startswith("p_")]
-        if not keys:
+        from miktcli.mixing import mixing_series
+        from miktcli.plots import png_panels
+
+        names = [t.name for t in run.card.teachers]
+        if len(set(names)) < len(names):  # the same teacher in two versions: tell them apart
+            names = [f"{t.name}@v{t.version}" for t in run.card.teachers]
+        branches = mixing_series(metrics, names)
+        if not branches:
             method = METHODS.get(run.card.method)
             mixing = [name for name, m in METHODS.items() if m.mixes_teachers]
             raise MiktError(f"run '{run.id}' has no mixing weights yet: it has no metrics"
                             if method is not None and method.mixes_teachers and not metrics
                             else f"run '{run.id}' ({run.card.method}) has no mixing weights: only "
                                  f"{', '.join(mixing)} runs do")
-        table = Table("steps", *keys, "teacher")
-        for r in _sampled(metrics, rows):
-            table.add_row(f"{r['steps']:,}", *("—" if r.get(k) is None else f"{r[k]:.3f}" for k in keys),
-                          "on" if r.get("teacher_active", 1.0) else "dropped")
-        out.print(table)
-        series = {k: [(r["steps"], r[k]) for r in metrics if r.get(k) is not None] for k in keys}
-        out.print(text_plot(series, y_range=(0.0, 1.0)))
+        shown = _sampled(metrics, rows)
+        for branch, series in branches.items():
+            by_step = {label: dict(points) for label, points in series.items()}
+            table = Table("steps", *series, "teacher", title=f"{branch}: weight of each source per layer")
+            for r in shown:
+                values = [by_step[label].get(r["steps"]) for label in series]
+                table.add_row(f"{r['steps']:,}", *("—" if v is None else f"{v:.3f}" for v in values),
+                              "on" if r.get("teacher_active", 1.0) else "dropped")
+            out.print(table)
+            out.print(text_plot(series, y_range=(0.0, 1.0)))
         if plot:
-            png_plot(series, plot, f"{run.id}: student mixing weights", "p (student)")
+            png_panels([(series, f"{run.id}: {branch} mixing weights", None) for branch, series in branches.items()],
+                       plot, "weight", columns=2)
             err.print(f"wrote {plot}")
     if curve:
         table = Table("steps", "mean return (last 100 ep.)", "mean length", "steps/s")

@@ -83,7 +83,7 @@ def tag_for(key: str) -> str:
     """TensorBoard groups tags by their prefix: returns, losses, PPO's diagnostics, MIKT's mixing, time."""
     if key.startswith("loss_"):
         return f"loss/{key[5:]}"
-    if key.startswith("p_"):
+    if key.startswith(("p_", "w_")):  # the student's weights and, with several teachers, the teachers'
         return f"mixing/{key}"
     if key in ("coupling_scale", "teacher_active"):
         return f"mikt/{key}"

@@ -129,7 +129,8 @@ def save_student(run: Run, student: GaussianActorCritic, final_return: float | N
 
 
 def mixing_weights(agent) -> dict[str, float]:
-    return {k: v for k, v in agent.diagnostics().items() if k.startswith("p_")}
+    """The student's weights (p_…) and, with several teachers, each teacher's (w_…; see miktcli.mixing)."""
+    return {k: v for k, v in agent.diagnostics().items() if k.startswith(("p_", "w_"))}
 
 
 def finish_transfer(job: Job, episodes: int) -> dict[str, Any]:
