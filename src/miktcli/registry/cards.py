@@ -158,6 +158,8 @@ class RunConfig(BaseModel):
     vf_hidden: list[int]
     options: dict[str, Any] | None = Field(None, description="the method's options, validated by its options model")
     teacher_name: str | None = Field(None, description="teacher runs: the name the teacher is published as")
+    eval_episodes: int | None = Field(None, ge=1, description="transfer runs: episodes of the final evaluation "
+                                      "(None on cards before mikt 0.2.1: the resuming command's decides)")
 
     @field_validator("ppo", mode="before")
     @classmethod

@@ -32,7 +32,9 @@ from typing import Any
 
 import torch
 
+from miktcli import limits
 from miktcli.errors import MiktError
+from miktcli.limits import read_file_bounded
 from miktcli.policies import GaussianActorCritic
 
 FORMATS = ("sb3", "cleanrl")
@@ -48,7 +50,35 @@ class ImportedPolicy:
     source: dict[str, Any] = field(default_factory=dict)
 
 
+def _read_member(archive: zipfile.ZipFile, name: str, maximum: int, where: str) -> bytes:
+    """One member, refused from the size its header declares, then counted while inflating (a header may
+    lie): a member that inflates past `maximum` never sits whole in memory."""
+    what = f"{where}: member '{name}'"
+    info = archive.getinfo(name)
+    limits.check_declared_size(what, info.file_size, maximum)
+    with archive.open(info) as stream:
+        return limits.read_bounded(stream, what, maximum)
+
+
+def _check_torch_archive(data: bytes, where: str) -> None:
+    """torch.save writes a zip of uncompressed members (the pickle and one per storage): a compressed or
+    oversized member is not torch's and could inflate inside torch.load, so it is refused before loading."""
+    if not zipfile.is_zipfile(io.BytesIO(data)):
+        return  # torch's legacy format: one stream whose storages are within these (bounded) bytes
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            infos = archive.infolist()
+    except (zipfile.BadZipFile, ValueError) as err:
+        raise MiktError(f"{where}: not a readable torch file: {err}") from None
+    packed = [i.filename for i in infos if i.compress_type != zipfile.ZIP_STORED]
+    if packed:
+        raise MiktError(f"{where}: member '{packed[0]}' is compressed; torch.save stores its tensors uncompressed")
+    limits.check_declared_size(f"{where}: its tensors", sum(i.file_size for i in infos),
+                               limits.MAX_TENSOR_FILE_BYTES)
+
+
 def _load_weights(data: bytes, where: str) -> dict[str, torch.Tensor]:
+    _check_torch_archive(data, where)
     try:
         state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as err:  # noqa: BLE001 - torch raises several types; weights_only refusals among them
@@ -118,10 +148,10 @@ def read_sb3_zip(path: Path) -> ImportedPolicy:
             names = set(archive.namelist())
             if "policy.pth" not in names or "data" not in names:
                 raise MiktError(f"{where}: not a Stable-Baselines3 model zip (no 'data' or 'policy.pth')")
-            data_text = archive.read("data").decode("utf-8")
-            weights = archive.read("policy.pth")
-            version = archive.read("_stable_baselines3_version").decode().strip() \
-                if "_stable_baselines3_version" in names else None
+            data_text = _read_member(archive, "data", limits.MAX_SB3_DATA_BYTES, where).decode("utf-8")
+            weights = _read_member(archive, "policy.pth", limits.MAX_TENSOR_FILE_BYTES, where)
+            version = _read_member(archive, "_stable_baselines3_version", limits.MAX_SMALL_MEMBER_BYTES,
+                                   where).decode().strip() if "_stable_baselines3_version" in names else None
     except (zipfile.BadZipFile, OSError, UnicodeDecodeError, zlib.error, RuntimeError, NotImplementedError) as err:
         # damaged deflate streams (zlib.error), encrypted members (RuntimeError), unknown compressions
         raise MiktError(f"{where}: not a readable zip: {type(err).__name__}: {err}") from None
@@ -164,7 +194,7 @@ def read_sb3_zip(path: Path) -> ImportedPolicy:
 
 def read_cleanrl(path: Path) -> ImportedPolicy:
     where = str(path)
-    state = _load_weights(Path(path).read_bytes(), where)
+    state = _load_weights(read_file_bounded(path, where, limits.MAX_TENSOR_FILE_BYTES), where)
     unknown = [k for k in state if not k.startswith(("actor_mean.", "critic.", "actor_logstd"))]
     if unknown:
         raise MiktError(f"{where}: unexpected tensor '{unknown[0]}' for ppo_continuous_action's Agent")
@@ -175,13 +205,21 @@ def read_cleanrl(path: Path) -> ImportedPolicy:
     return ImportedPolicy(policy, "tanh", {"format": "cleanrl"})
 
 
+def _numbers(value: Any, key: str) -> Any:
+    """JSON numbers only: Python reads `true` as 1, which would pass silently into a normaliser."""
+    items = value if isinstance(value, list) else [value]
+    if any(isinstance(v, bool) for v in items):
+        raise TypeError(f"'{key}' holds true or false, not a number")
+    return value
+
+
 def read_obs_stats(path: Path, obs_dim: int) -> dict[str, torch.Tensor]:
     """`{"mean": [...], "var": [...], "count": n}` (count optional) as the normaliser's buffers."""
     try:
-        data = json.loads(Path(path).read_text())
-        mean = torch.tensor(data["mean"], dtype=torch.float64)
-        var = torch.tensor(data["var"], dtype=torch.float64)
-        count = torch.tensor(float(data.get("count", 1e6)), dtype=torch.float64)
+        data = json.loads(read_file_bounded(path, str(path), limits.MAX_JSON_BYTES).decode("utf-8"))
+        mean = torch.tensor(_numbers(data["mean"], "mean"), dtype=torch.float64)
+        var = torch.tensor(_numbers(data["var"], "var"), dtype=torch.float64)
+        count = torch.tensor(float(_numbers(data.get("count", 1e6), "count")), dtype=torch.float64)
     except (json.JSONDecodeError, RecursionError, KeyError, TypeError, ValueError, OverflowError,
             UnicodeDecodeError) as err:
         raise MiktError(f"{path}: expected JSON with 'mean' and 'var' lists of numbers (and optionally "
@@ -196,6 +234,14 @@ def read_obs_stats(path: Path, obs_dim: int) -> dict[str, torch.Tensor]:
     return {"mean": mean, "var": var, "count": count}
 
 
+def _file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):  # in pieces: a zip may be far larger than its members
+            h.update(chunk)
+    return h.hexdigest()
+
+
 def read_foreign_policy(path: Path, fmt: str, obs_stats: Path | None) -> ImportedPolicy:
     if not Path(path).is_file():
         raise MiktError(f"{path}: " + ("a folder, not a model file" if Path(path).is_dir() else "no such file"))
@@ -203,7 +249,7 @@ def read_foreign_policy(path: Path, fmt: str, obs_stats: Path | None) -> Importe
         raise MiktError(f"unknown format '{fmt}'; known: {', '.join(FORMATS)}")
     imported = read_sb3_zip(path) if fmt == "sb3" else read_cleanrl(path)
     imported.source["file"] = Path(path).name
-    imported.source["file_sha256"] = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    imported.source["file_sha256"] = _file_sha256(Path(path))
     if obs_stats is not None:
         stats = read_obs_stats(obs_stats, imported.policy.obs_normalizer.mean.shape[0])
         with torch.no_grad():

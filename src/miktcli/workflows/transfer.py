@@ -10,8 +10,10 @@ from typing import Any
 import torch
 from pydantic import ValidationError
 
+from miktcli import limits
 from miktcli.envs import load_spec
 from miktcli.errors import MiktError, TeacherMismatchError, describe_validation_error
+from miktcli.limits import check_count
 from miktcli.methods import get_method
 from miktcli.policies import GaussianActorCritic
 from miktcli.ppo import PPOConfig
@@ -61,8 +63,10 @@ def start_transfer(
     registry: Path, *, to: str, method: str, teacher_refs: list[str], steps: int, seed: int, command: str,
     kl_coef: float | None = None, num_envs: int = 1, options: dict[str, Any] | None = None,
     encoder_widths: list[int] | None = None, hidden: list[int] | None = None, compile_loss: bool = False,
+    eval_episodes: int = 10,
 ) -> Run:
     """Check everything a transfer needs, then create its run folder (not yet trained)."""
+    check_count("--eval-episodes", eval_episodes, limits.MAX_EPISODES)
     m = get_method(method)
     m.check_teacher_count(len(teacher_refs))
     parsed = m.parse_options(options)
@@ -80,7 +84,7 @@ def start_transfer(
     except ValidationError as err:
         raise MiktError(f"bad PPO setting: {describe_validation_error(err)}") from err
     config = RunConfig(ppo=ppo, pi_hidden=sizes[0], vf_hidden=sizes[1],
-                       options=None if parsed is None else parsed.model_dump())
+                       options=None if parsed is None else parsed.model_dump(), eval_episodes=eval_episodes)
     return new_run(registry, kind="transfer", env=to, method=method, seed=seed, total_steps=steps, config=config,
                    command=command, teachers=[teacher_ref(t) for t in teachers])
 
