@@ -31,3 +31,14 @@ def test_a_card_from_before_the_field_resumes_with_the_command_s_count(registry,
     ctrl_c_at_second_update()
     result = json.loads(mikt("transfer", "--resume", "run1", "--json").stdout)
     assert result["eval_without_teacher"]["episodes"] == 10
+
+
+def test_a_study_cell_records_the_grid_s_eval_episodes(registry):
+    from miktcli.studies.grid import Grid
+    from miktcli.studies.study import Study
+
+    grid = Grid.model_validate({"name": "g", "steps": 2048, "seeds": [0], "eval_episodes": 2,
+                                "methods": [{"name": "vpg", "method": "vpg"}],
+                                "pairs": [{"from": ["x"], "to": "centipede-four"}]})
+    [(_, run)] = Study(grid, registry.parent / "out", registry).prepare("test")
+    assert run.card.config.eval_episodes == 2

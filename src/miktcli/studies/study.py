@@ -151,7 +151,7 @@ class Study:
                     self.registry, to=pair.to, method=method.method,
                     teacher_refs=pair.teachers if method.uses_teachers else [], steps=self.grid.steps,
                     seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, options=method.options,
-                    compile_loss=self.grid.compile_loss,
+                    compile_loss=self.grid.compile_loss, eval_episodes=self.grid.eval_episodes,
                 )
                 self._remember(key, run.id)
             elif (run.card.status in ("running", "interrupted") and run.card.steps_done == 0
