@@ -7,6 +7,7 @@ from typing import Any
 import gymnasium as gym
 import mujoco
 
+from miktcli.envs.gl_backend import load_gl_backend
 from miktcli.envs.mujoco_warnings import capture_mujoco_warnings
 from miktcli.envs.spec import CentipedeSpec, GymnasiumSpec, load_spec, scan_specs
 from miktcli.errors import MiktError
@@ -39,6 +40,8 @@ def make_env(spec: Spec | str, render_mode: str | None = None) -> gym.Env:
     if isinstance(spec, str):
         spec = load_spec(spec)
     capture_mujoco_warnings()
+    if render_mode is not None:
+        load_gl_backend()
     env = spec.build(render_mode)
     _check_continuous_mujoco(spec, env)
     obs_dim, act_dim = env_dims(env)
