@@ -22,7 +22,7 @@ MAX_EPISODES = 10_000  # evaluation episodes: ~10M env steps with 1,000-step epi
 MAX_VIDEO_FRAMES = 3_000  # frames are held in memory before encoding: 3,000 of 480×480 RGB ≈ 2 GB, 150 s at 20 fps
 
 # Files read from users (imports, statistics, teacher and checkpoint files).
-MAX_JSON_BYTES = 16 * MiB  # --obs-stats and the like: mean and var of a 100,000-dim observation take ~4 MB
+MAX_JSON_BYTES = 16 * MiB  # --obs-stats and env spec files: a 100,000-dim mean and var take ~4 MB, a spec ~1 KB
 MAX_SB3_DATA_BYTES = 64 * MiB  # SB3's `data` JSON: kilobytes, a few MB with serialized schedules and buffers
 MAX_TENSOR_FILE_BYTES = 256 * MiB  # policy.pth, CleanRL models, teachers, checkpoints: these MLPs take ~100 KB
 MAX_SMALL_MEMBER_BYTES = 64 * 1024  # a zip's version stamp and the like: a few bytes

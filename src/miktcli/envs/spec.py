@@ -12,8 +12,10 @@ from typing import Annotated, Any, Literal
 import gymnasium as gym
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator, model_validator
 
+from miktcli import limits
 from miktcli.envs.centipede import CentipedeEnv
 from miktcli.errors import MiktError, describe_validation_error
+from miktcli.limits import read_file_bounded
 
 SPEC_NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
 GYM_ID_RE = re.compile(r"^[A-Za-z0-9_./-]+-v\d+$")
@@ -111,7 +113,11 @@ def envspecs_dir() -> Path:
 
 def load_spec_file(path: Path) -> CentipedeSpec | GymnasiumSpec:
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        if path.is_dir():  # a folder named x.toml: not a spec, and never a reason to hide the others
+            raise MiktError(f"{path}: a folder, not a spec file")
+        data = tomllib.loads(read_file_bounded(path, str(path), limits.MAX_JSON_BYTES).decode("utf-8"))
+    except OSError as err:  # unreadable (permissions), vanished since the listing
+        raise MiktError(f"{path}: cannot be read: {err.strerror or err}") from err
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise MiktError(f"{path}: not valid TOML: {err}") from err
     try:
@@ -125,7 +131,7 @@ def load_spec_file(path: Path) -> CentipedeSpec | GymnasiumSpec:
 
 def spec_names(directory: Path | None = None) -> list[str]:
     directory = directory or envspecs_dir()
-    return sorted(p.stem for p in directory.glob("*.toml"))
+    return sorted(p.stem for p in directory.glob("*.toml") if p.is_file())
 
 
 def load_spec(name: str, directory: Path | None = None) -> CentipedeSpec | GymnasiumSpec:
