@@ -9,6 +9,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from miktcli.envs.failures import env_failure
 from miktcli.render import render_frame
 
 
@@ -38,7 +39,10 @@ def run_episodes(
     result = EvalResult([], [], fps=int(env.metadata.get("render_fps", 20)))
     low, high = env.action_space.low, env.action_space.high
     for ep in range(episodes):
-        obs, _ = env.reset(seed=seed + ep)
+        try:
+            obs, _ = env.reset(seed=seed + ep)
+        except Exception as err:  # noqa: BLE001 - as for step below
+            raise env_failure(env, err, "reset") from err
         total, length, done = 0.0, 0, False
         while not done:
             if ep < capture_episodes and length % frame_every == 0 \
@@ -46,7 +50,11 @@ def run_episodes(
                 result.frames.append(render_frame(env))
             with torch.inference_mode():  # actions go straight to numpy
                 action = act(torch.as_tensor(obs, dtype=torch.float32)[None])[0].numpy()
-            obs, reward, terminated, truncated, _ = env.step(np.clip(action, low, high) if clip_actions else action)
+            try:
+                obs, reward, terminated, truncated, _ = env.step(np.clip(action, low, high) if clip_actions
+                                                                 else action)
+            except Exception as err:  # noqa: BLE001 - an env's own code: name its spec, not a mikt bug
+                raise env_failure(env, err, "step") from err
             total += float(reward)
             length += 1
             done = terminated or truncated

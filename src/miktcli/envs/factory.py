@@ -8,6 +8,7 @@ from typing import Any
 import gymnasium as gym
 import mujoco
 
+from miktcli.envs.failures import remember_spec_name
 from miktcli.envs.gl_backend import load_gl_backend
 from miktcli.envs.mujoco_warnings import capture_mujoco_warnings
 from miktcli.envs.spec import CentipedeSpec, GymnasiumSpec, load_spec, scan_specs
@@ -44,6 +45,7 @@ def make_env(spec: Spec | str, render_mode: str | None = None) -> gym.Env:
     if render_mode is not None:
         load_gl_backend()
     env = spec.build(render_mode)
+    remember_spec_name(env, spec.name)
     _check_continuous_mujoco(spec, env)
     obs_dim, act_dim = env_dims(env)
     if (obs_dim, act_dim) != (spec.obs_dim, spec.act_dim):
