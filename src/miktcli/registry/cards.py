@@ -106,6 +106,9 @@ class TeacherCard(BaseModel):
     pi_hidden: list[int]
     vf_hidden: list[int]
     activation: Literal["tanh", "relu"] = "tanh"  # hidden layers; mikt trains tanh, imported teachers may be relu
+    # The normaliser's clip of normalised observations; None: not clipped (a teacher imported without
+    # statistics saw raw observations). Cards before this field were all clipped at ±10.
+    obs_clip: float | None = Field(10.0, gt=0)
     # How actions reached the env in training, and so how to evaluate the policy.
     clip_actions_for_env: bool
     steps: int

@@ -12,10 +12,12 @@ Supported shapes (anything else is refused with a one-line error):
   parameters in its features extractor (the default `FlattenExtractor`). A shared trunk
   (`mlp_extractor.shared_net`, SB3 < 1.8) is refused: MIKT mixes the policy's and the value's own layers.
 - CleanRL `Agent` of `ppo_continuous_action.py`: `actor_mean` and `critic` `nn.Sequential` MLPs (Linear at even
-  indices, tanh between) and `actor_logstd` of shape (1, act_dim).
+  indices, tanh between unless `--activation relu`) and `actor_logstd` of shape (1, act_dim).
 Observation statistics live outside both files (SB3's VecNormalize pickle, CleanRL's NormalizeObservation
 wrapper): pass them as numbers (a JSON file with `mean` and `var` lists, optionally `count`). Without them the
-teacher sees raw observations (mean 0, var 1; mikt's normaliser still clips at ±10).
+teacher sees raw observations (mean 0, var 1, and no clipping: the card's `obs_clip` is None), as it did
+without VecNormalize. Where a file cannot tell (CleanRL's activation, an SB3 zip without `activation_fn`), the
+card's `imported_from` records what was assumed or given rather than read.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import hashlib
 import io
 import json
 import re
+import warnings
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -38,6 +41,7 @@ from miktcli.limits import read_file_bounded
 from miktcli.policies import GaussianActorCritic
 
 FORMATS = ("sb3", "cleanrl")
+ACTIVATIONS = ("tanh", "relu")
 _LAYER = re.compile(r"^(?P<net>.+)\.(?P<index>\d+)\.(?P<param>weight|bias)$")
 
 
@@ -80,7 +84,9 @@ def _check_torch_archive(data: bytes, where: str) -> None:
 def _load_weights(data: bytes, where: str) -> dict[str, torch.Tensor]:
     _check_torch_archive(data, where)
     try:
-        state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # torch warns about pickle protocols beside the error we give
+            warnings.filterwarnings("ignore", message=".*pickle protocol", category=UserWarning)
+            state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as err:  # noqa: BLE001 - torch raises several types; weights_only refusals among them
         raise MiktError(f"{where}: not a plain state dict of tensors (refused without unpickling: "
                         f"{type(err).__name__})") from None
@@ -130,6 +136,10 @@ def _assemble(pi_hidden: list[tuple], pi_head: tuple, vf_hidden: list[tuple], vf
         for j, (w, b) in enumerate(hidden):
             state[f"{net}.hidden.{j}.weight"], state[f"{net}.hidden.{j}.bias"] = w, b
         state[f"{net}.head.weight"], state[f"{net}.head.bias"] = head
+    not_real = [k for k, v in state.items() if not v.is_floating_point()]
+    if not_real:  # a complex log_std would pass isfinite and be cast silently to its real part
+        raise MiktError(f"{where}: tensor '{not_real[0]}' is {state[not_real[0]].dtype}; policies hold real "
+                        "floating-point tensors")
     not_finite = [k for k, v in state.items() if not torch.isfinite(v).all()]
     if not_finite:  # a diverged policy would act NaN: refuse it before it enters the registry
         raise MiktError(f"{where}: weights for '{not_finite[0]}' hold NaN or infinite values")
@@ -141,7 +151,7 @@ def _assemble(pi_hidden: list[tuple], pi_head: tuple, vf_hidden: list[tuple], vf
     return policy
 
 
-def read_sb3_zip(path: Path) -> ImportedPolicy:
+def read_sb3_zip(path: Path, activation: str | None = None) -> ImportedPolicy:
     where = str(path)
     try:
         with zipfile.ZipFile(path) as archive:
@@ -164,10 +174,15 @@ def read_sb3_zip(path: Path) -> ImportedPolicy:
     # SB3 records the class as "<class 'torch.nn.modules.activation.ReLU'>": its exact name decides, since
     # LeakyReLU, ReLU6 or Tanhshrink are other functions that merely contain "ReLU" or "Tanh"
     class_name = activation_text.strip("<>").removeprefix("class ").strip("'\"").rsplit(".", 1)[-1]
-    if class_name == "ReLU":
-        activation = "relu"
-    elif activation_text == "" or class_name == "Tanh":
-        activation = "tanh"  # PPO's MlpPolicy default
+    if class_name in ("ReLU", "Tanh"):
+        read = class_name.lower()
+        if activation is not None and activation != read:
+            raise MiktError(f"{where}: --activation {activation} contradicts the file, whose policy_kwargs name "
+                            f"{class_name}", hint="leave --activation out for SB3 zips that record it")
+        activation, how = read, "read from policy_kwargs"
+    elif activation_text == "":
+        how = "given (--activation)" if activation else "assumed: PPO MlpPolicy's default (not in policy_kwargs)"
+        activation = activation or "tanh"
     else:
         raise MiktError(f"{where}: activation {activation_text!r} is not supported (tanh or relu)")
     state = _load_weights(weights, f"{where}: policy.pth")
@@ -189,10 +204,12 @@ def read_sb3_zip(path: Path) -> ImportedPolicy:
         _stack(state, "mlp_extractor.policy_net", where), (state["action_net.weight"], state["action_net.bias"]),
         _stack(state, "mlp_extractor.value_net", where), (state["value_net.weight"], state["value_net.bias"]),
         state["log_std"], activation, where)
-    return ImportedPolicy(policy, activation, {"format": "sb3", "sb3_version": version})
+    return ImportedPolicy(policy, activation, {"format": "sb3", "sb3_version": version, "activation": how})
 
 
-def read_cleanrl(path: Path) -> ImportedPolicy:
+def read_cleanrl(path: Path, activation: str | None = None) -> ImportedPolicy:
+    """A CleanRL model's state dict cannot tell its activation: `activation` says it (tanh, the script's, when
+    None, and the card records that it was assumed)."""
     where = str(path)
     state = _load_weights(read_file_bounded(path, where, limits.MAX_TENSOR_FILE_BYTES), where)
     unknown = [k for k in state if not k.startswith(("actor_mean.", "critic.", "actor_logstd"))]
@@ -201,8 +218,11 @@ def read_cleanrl(path: Path) -> ImportedPolicy:
     if "actor_logstd" not in state:
         raise MiktError(f"{where}: tensor 'actor_logstd' is missing")
     actor, critic = _stack(state, "actor_mean", where), _stack(state, "critic", where)
-    policy = _assemble(actor[:-1], actor[-1], critic[:-1], critic[-1], state["actor_logstd"], "tanh", where)
-    return ImportedPolicy(policy, "tanh", {"format": "cleanrl"})
+    how = "given (--activation)" if activation else "assumed: ppo_continuous_action.py's tanh (a state dict " \
+        "cannot tell)"
+    activation = activation or "tanh"
+    policy = _assemble(actor[:-1], actor[-1], critic[:-1], critic[-1], state["actor_logstd"], activation, where)
+    return ImportedPolicy(policy, activation, {"format": "cleanrl", "activation": how})
 
 
 def _numbers(value: Any, key: str) -> Any:
@@ -242,12 +262,15 @@ def _file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def read_foreign_policy(path: Path, fmt: str, obs_stats: Path | None) -> ImportedPolicy:
+def read_foreign_policy(path: Path, fmt: str, obs_stats: Path | None,
+                        activation: str | None = None) -> ImportedPolicy:
     if not Path(path).is_file():
         raise MiktError(f"{path}: " + ("a folder, not a model file" if Path(path).is_dir() else "no such file"))
     if fmt not in FORMATS:
         raise MiktError(f"unknown format '{fmt}'; known: {', '.join(FORMATS)}")
-    imported = read_sb3_zip(path) if fmt == "sb3" else read_cleanrl(path)
+    if activation is not None and activation not in ACTIVATIONS:
+        raise MiktError(f"unknown activation '{activation}'; known: {', '.join(ACTIVATIONS)}")
+    imported = read_sb3_zip(path, activation) if fmt == "sb3" else read_cleanrl(path, activation)
     imported.source["file"] = Path(path).name
     imported.source["file_sha256"] = _file_sha256(Path(path))
     if obs_stats is not None:
@@ -256,4 +279,6 @@ def read_foreign_policy(path: Path, fmt: str, obs_stats: Path | None) -> Importe
             for key, value in stats.items():
                 getattr(imported.policy.obs_normalizer, key).copy_(value)
         imported.source["obs_stats"] = Path(obs_stats).name
+    else:  # what the policy saw in training is unknown: raw observations, as without VecNormalize
+        imported.source["obs_stats"] = "none given: raw observations, not clipped"
     return imported

@@ -72,10 +72,15 @@ def start_transfer(
     parsed = m.parse_options(options)
     load_spec(to)
     teachers = [load_teacher(registry, ref) for ref in teacher_refs]
-    refs = [t.card.ref for t in teachers]
-    twice = sorted({ref for ref in refs if refs.count(ref) > 1})
-    if twice:  # the same representation offered twice only splits the student's attention
-        raise MiktError(f"teacher {twice[0]} is given more than once")
+    by_content: dict[str, str] = {}  # tensors' sha256 (verified on load) → the ref that brought them
+    for t in teachers:  # the same representation offered twice only splits the student's attention
+        sha, ref = t.card.tensors_sha256, t.card.ref
+        if sha in by_content:  # by content: one policy imported or copied under two names or versions too
+            first = by_content[sha]
+            raise MiktError(f"teacher {ref} is given more than once" if first == ref else
+                            f"teachers {first} and {ref} hold the same tensors (sha256 {sha[:12]}…): the same "
+                            "teacher would be given twice")
+        by_content[sha] = ref
     sizes = (check_teachers(teachers, encoder_widths if m.encoder_per_teacher else None, hidden) if teachers
              else (hidden or DEFAULT_HIDDEN, hidden or DEFAULT_HIDDEN))
     try:
