@@ -45,6 +45,11 @@ class MethodOptionError(MiktError):
         self.method, self.option = method, option
 
 
+class EnvKeywordError(MiktError, TypeError):
+    """A keyword of `gym.make("mikt/NAME", ...)` that the env's spec decides; a TypeError too, as Python's own
+    refusal of an unexpected keyword would be."""
+
+
 _OS_HINTS = {
     errno.EACCES: "check the permissions of that path, or choose another --registry / --out",
     errno.EPERM: "check the permissions of that path, or choose another --registry / --out",

@@ -36,10 +36,14 @@ def update_moments(mean: np.ndarray, var: np.ndarray, count: float, batch: np.nd
 
 
 class ObsNormalizer(nn.Module):
-    """Running mean/std of observations; normalises and clips to ±10. Float64 statistics as buffers."""
+    """Running mean/std of observations; normalises and clips to ±10. Float64 statistics as buffers.
 
-    def __init__(self, dim: int):
+    `clip` is not a buffer (state dicts stay as they were): a teacher imported without statistics saw raw
+    observations, never clipped, and its card says so (TeacherCard.obs_clip None → no clip)."""
+
+    def __init__(self, dim: int, clip: float = OBS_CLIP):
         super().__init__()
+        self.clip = clip
         self.register_buffer("mean", torch.zeros(dim, dtype=torch.float64))
         self.register_buffer("var", torch.ones(dim, dtype=torch.float64))
         self.register_buffer("count", torch.zeros((), dtype=torch.float64))
@@ -54,11 +58,11 @@ class ObsNormalizer(nn.Module):
     def normalize_np(self, obs: np.ndarray) -> np.ndarray:
         """The rollout's hot path: numpy in, float32 numpy out."""
         mean, var = self.mean.numpy(), self.var.numpy()
-        return np.clip((obs - mean) / np.sqrt(var + NORM_EPS), -OBS_CLIP, OBS_CLIP).astype(np.float32)
+        return np.clip((obs - mean) / np.sqrt(var + NORM_EPS), -self.clip, self.clip).astype(np.float32)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         out = (obs.double() - self.mean) / torch.sqrt(self.var + NORM_EPS)
-        return out.clamp(-OBS_CLIP, OBS_CLIP).float()
+        return out.clamp(-self.clip, self.clip).float()
 
 
 def orthogonal_linear(n_in: int, n_out: int, gain: float) -> nn.Linear:

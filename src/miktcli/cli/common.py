@@ -10,6 +10,7 @@ from typing import Annotated
 
 import typer
 
+from miktcli import limits
 from miktcli.errors import MiktError
 
 # Options shared by several commands, declared once.
@@ -18,8 +19,10 @@ RegistryOption = Annotated[Path, typer.Option(
     help="Registry folder (default: $MIKT_REGISTRY or ./registry).")]
 JsonOption = Annotated[bool, typer.Option("--json", help="Print as JSON (data on stdout).")]
 SeedOption = Annotated[int, typer.Option("--seed", min=0, max=2**32 - 1, help="Random seed.")]
-StepsOption = Annotated[int, typer.Option("--steps", min=1, help="Environment steps (the paper: 2M).")]
-NumEnvsOption = Annotated[int, typer.Option("--num-envs", min=1, help="Synchronous environments (the paper: 1).")]
+StepsOption = Annotated[int, typer.Option("--steps", min=1, max=limits.MAX_STEPS,
+                                          help="Environment steps (the paper: 2M).")]
+NumEnvsOption = Annotated[int, typer.Option("--num-envs", min=1, max=limits.MAX_NUM_ENVS,
+                                            help="Synchronous environments (the paper: 1).")]
 CompileOption = Annotated[bool, typer.Option(
     "--compile", help="Compile the PPO loss with torch.compile: faster updates, ~30 s to compile; needs a C++ "
     "compiler. Recorded in the run.")]

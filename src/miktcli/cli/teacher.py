@@ -86,6 +86,9 @@ def import_command(
     obs_stats: Path = typer.Option(
         None, "--obs-stats", help='JSON {"mean": [...], "var": [...]}: the observation normaliser it was trained '
         "with (SB3's VecNormalize, CleanRL's NormalizeObservation)."),
+    activation: str = typer.Option(
+        None, "--activation", help="tanh | relu, for files that cannot tell (CleanRL; default tanh, recorded as "
+        "assumed). SB3 zips record theirs."),
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     """Import a PPO policy trained with Stable-Baselines3 or CleanRL as a teacher. Nothing is unpickled."""
@@ -95,9 +98,12 @@ def import_command(
         fmt = "sb3" if path.suffix == ".zip" else "cleanrl" if path.suffix == ".cleanrl_model" else None
         if fmt is None:
             raise MiktError(f"{path}: cannot tell the format from the name", hint="pass --format sb3 or cleanrl")
-    card = import_teacher(registry, path, fmt=fmt, env=env, name=name, obs_stats=obs_stats)
+    card = import_teacher(registry, path, fmt=fmt, env=env, name=name, obs_stats=obs_stats, activation=activation)
     err.print(f"imported {path.name} ({fmt}, {card.activation}, hidden {card.pi_hidden}) as {card.ref}")
     _warn_if_shadowing(registry, card, fmt)
+    for what in ("activation", "obs_stats"):  # say what was assumed rather than read
+        if str(card.imported_from.get(what, "")).startswith(("assumed", "none given")):
+            err.print(f"{what}: {card.imported_from[what]}")
     print_data(card.ref)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import typer
 
+from miktcli import limits
 from miktcli.cli.common import (
     DEFAULT_REGISTRY,
     CompileOption,
@@ -13,6 +14,7 @@ from miktcli.cli.common import (
     SeedOption,
     StepsOption,
     command_line,
+    given_on_command_line,
     note_rounding,
     parse_hidden,
     refuse_options_of_other_methods,
@@ -73,7 +75,8 @@ def transfer(
     hidden: str = typer.Option(None, "--hidden", help="Optional check: must equal the teachers' hidden sizes."),
     num_envs: NumEnvsOption = 1,
     compile_loss: CompileOption = False,
-    eval_episodes: int = typer.Option(10, "--eval-episodes", min=1, help="Episodes for the final evaluation."),
+    eval_episodes: int = typer.Option(10, "--eval-episodes", min=1, max=limits.MAX_EPISODES,
+                                      help="Episodes for the final evaluation (recorded; kept on --resume)."),
     resume: str = typer.Option(None, "--resume", help="Continue an interrupted transfer run."),
     as_json: JsonOption = False,
     registry: RegistryOption = DEFAULT_REGISTRY,
@@ -87,6 +90,8 @@ def transfer(
     if resume:
         refuse_options_with_resume(ctx)
         run = open_resumable(reg, resume, "transfer")
+        if run.card.config.eval_episodes is not None and not given_on_command_line(ctx, {"eval_episodes"}):
+            eval_episodes = run.card.config.eval_episodes  # what the run was started with, not the default
     else:
         if to is None:
             raise MiktError("give the target environment with --to ENV (or --resume RUN)")
@@ -100,7 +105,7 @@ def transfer(
             run = start_transfer(
                 reg, to=to, method=method, teacher_refs=list(teacher or []), steps=steps, seed=seed,
                 command=command_line(), kl_coef=kl_coef, num_envs=num_envs, options=options,
-                compile_loss=compile_loss,
+                compile_loss=compile_loss, eval_episodes=eval_episodes,
                 encoder_widths=list(encoder_width) if encoder_width else None,
                 hidden=parse_hidden(hidden) if hidden else None,
             )

@@ -24,8 +24,10 @@ from pydantic import (
     model_validator,
 )
 
+from miktcli import limits
 from miktcli.envs.centipede import CentipedeEnv
 from miktcli.errors import MiktError, describe_validation_error
+from miktcli.limits import read_file_bounded
 
 SPEC_NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
 GYM_ID_RE = re.compile(r"^[A-Za-z0-9_./-]+-v\d+$")
@@ -205,11 +207,13 @@ def envspecs_dir() -> Path:
 
 def load_spec_file(path: Path) -> AnySpec:
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        if path.is_dir():  # a folder named x.toml: not a spec, and never a reason to hide the others
+            raise MiktError(f"{path}: a folder, not a spec file")
+        data = tomllib.loads(read_file_bounded(path, str(path), limits.MAX_JSON_BYTES).decode("utf-8"))
+    except OSError as err:  # unreadable (permissions), vanished since the listing
+        raise MiktError(f"{path}: cannot be read: {err.strerror or err}") from err
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise MiktError(f"{path}: not valid TOML: {err}") from err
-    except OSError as err:
-        raise MiktError(f"{path}: cannot be read: {err.strerror or err}") from err
     try:
         spec = parse_spec(data)
     except ValidationError as err:
@@ -231,7 +235,8 @@ def _spec_files(directory: Path | None) -> dict[str, Path]:
 
 
 def spec_names(directory: Path | None = None) -> list[str]:
-    return list(_spec_files(directory))
+    # a folder named x.toml is not a spec: scan_specs names it as such, and it is never offered as a name
+    return [name for name, path in _spec_files(directory).items() if path.is_file()]
 
 
 def load_spec(name: str, directory: Path | None = None) -> AnySpec:

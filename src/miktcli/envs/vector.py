@@ -14,6 +14,9 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from miktcli.envs.failures import env_failure
+from miktcli.errors import MiktError
+
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 # Derived quantities that reward code reads *before* the next mj_step (Ant's and the centipede's "x before").
 # After mj_step they describe the last sub-step's start, not the integrated state, so a resumed env gets the
@@ -54,7 +57,16 @@ class SyncEnvs:
         self.action_high = envs[0].action_space.high.astype(np.float32)
         self._returns = np.zeros(self.num)
         self._lengths = np.zeros(self.num, dtype=np.int64)
-        self._obs = np.stack([env.reset(seed=seed + i)[0] for i, env in enumerate(envs)])
+        self._obs = np.stack([self._reset(env, seed=seed + i) for i, env in enumerate(envs)])
+
+    @staticmethod
+    def _reset(env: gym.Env, **kwargs: Any) -> np.ndarray:
+        try:
+            return env.reset(**kwargs)[0]
+        except MiktError:
+            raise
+        except Exception as err:  # noqa: BLE001 - an env's own code: name its spec, not a mikt bug
+            raise env_failure(env, err, "reset") from err
 
     @property
     def obs(self) -> np.ndarray:
@@ -70,7 +82,12 @@ class SyncEnvs:
         result = StepResult(self._obs, rewards, terminated, truncated)
         next_obs = np.empty_like(self._obs)
         for i, env in enumerate(self.envs):
-            obs, reward, term, trunc, _ = env.step(actions[i])
+            try:
+                obs, reward, term, trunc, _ = env.step(actions[i])
+            except MiktError:
+                raise
+            except Exception as err:  # noqa: BLE001 - an env's own code: name its spec, not a mikt bug
+                raise env_failure(env, err, "step") from err
             rewards[i] = reward
             self._returns[i] += reward
             self._lengths[i] += 1
@@ -80,7 +97,7 @@ class SyncEnvs:
                     result.final_obs[i] = obs
                 result.finished.append((float(self._returns[i]), int(self._lengths[i])))
                 self._returns[i], self._lengths[i] = 0.0, 0
-                obs, _ = env.reset()
+                obs = self._reset(env)
             next_obs[i] = obs
         self._obs = next_obs
         result.obs = next_obs

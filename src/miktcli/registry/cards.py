@@ -16,9 +16,10 @@ from miktcli.ppo import PPOConfig
 
 # A card is written with the newest version this code knows; a reader refuses a newer one with a message
 # instead of a validation error about a field it has never heard of. Every version reads every older one.
-# Teacher: 2 adds `code_history`. Run: 2 adds the status `created` and `code_history`.
-TEACHER_SCHEMA_VERSION = 2
-RUN_SCHEMA_VERSION = 2
+# Teacher: 2 adds `code_history`, 3 `obs_clip`. Run: 2 adds the status `created` and `code_history`, 3
+# `config.eval_episodes`.
+TEACHER_SCHEMA_VERSION = 3
+RUN_SCHEMA_VERSION = 3
 
 
 class TeacherVersion(NamedTuple):
@@ -114,6 +115,9 @@ class TeacherCard(BaseModel):
     pi_hidden: list[int]
     vf_hidden: list[int]
     activation: Literal["tanh", "relu"] = "tanh"  # hidden layers; mikt trains tanh, imported teachers may be relu
+    # The normaliser's clip of normalised observations; None: not clipped (a teacher imported without
+    # statistics saw raw observations). Cards before this field were all clipped at ±10.
+    obs_clip: float | None = Field(10.0, gt=0)
     # How actions reached the env in training, and so how to evaluate the policy.
     clip_actions_for_env: bool
     steps: int
@@ -166,6 +170,8 @@ class RunConfig(BaseModel):
     vf_hidden: list[int]
     options: dict[str, Any] | None = Field(None, description="the method's options, validated by its options model")
     teacher_name: str | None = Field(None, description="teacher runs: the name the teacher is published as")
+    eval_episodes: int | None = Field(None, ge=1, description="transfer runs: episodes of the final evaluation "
+                                      "(None on cards before schema 3: the resuming command's decides)")
 
     @field_validator("ppo", mode="before")
     @classmethod

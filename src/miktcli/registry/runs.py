@@ -32,7 +32,7 @@ from miktcli.registry.tensorboard import EVENTS_FILE, append_event, event_record
 
 RUN_RE = re.compile(r"^run(\d+)$")
 RUN_TARGET_RE = re.compile(r"^(run\d+|last)$")  # what eval and inspect accept as a run
-CHECKPOINT_SCHEMA_VERSION = 2  # 2: the run card it carries may be a version-2 run card
+CHECKPOINT_SCHEMA_VERSION = 3  # 2, 3: the run card it carries may be a version-2 or version-3 run card
 
 
 class CheckpointCard(BaseModel):

@@ -9,6 +9,7 @@ crash could leave half-updated.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -182,6 +183,7 @@ def load_policy_file(path: Path) -> tuple[TeacherCard, GaussianActorCritic]:
     policy = GaussianActorCritic(card.obs_dim, card.act_dim, card.pi_hidden, card.vf_hidden, card.activation)
     policy.load_state_dict(tensors)
     policy.obs_normalizer.frozen = True
+    policy.obs_normalizer.clip = math.inf if card.obs_clip is None else card.obs_clip
     return card, policy
 
 

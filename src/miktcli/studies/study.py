@@ -266,7 +266,7 @@ class Study:
                 teacher_refs=[self.pins[ref].ref for ref in pair.teachers] if method.uses_teachers else [],
                 steps=self.grid.steps,
                 seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, options=method.options,
-                compile_loss=self.grid.compile_loss,
+                compile_loss=self.grid.compile_loss, eval_episodes=self.grid.eval_episodes,
             )
             self._remember(key, run.id, write=False)
             created = True

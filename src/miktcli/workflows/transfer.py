@@ -10,8 +10,10 @@ from typing import Any
 import torch
 from pydantic import ValidationError
 
+from miktcli import limits
 from miktcli.envs import load_spec
 from miktcli.errors import MiktError, TeacherMismatchError, describe_validation_error
+from miktcli.limits import check_count
 from miktcli.methods import get_method
 from miktcli.policies import GaussianActorCritic
 from miktcli.ppo import PPOConfig
@@ -61,17 +63,24 @@ def start_transfer(
     registry: Path, *, to: str, method: str, teacher_refs: list[str], steps: int, seed: int, command: str,
     kl_coef: float | None = None, num_envs: int = 1, options: dict[str, Any] | None = None,
     encoder_widths: list[int] | None = None, hidden: list[int] | None = None, compile_loss: bool = False,
+    eval_episodes: int = 10,
 ) -> Run:
     """Check everything a transfer needs, then create its run folder (not yet trained)."""
+    check_count("--eval-episodes", eval_episodes, limits.MAX_EPISODES)
     m = get_method(method)
     m.check_teacher_count(len(teacher_refs))
     parsed = m.parse_options(options)
     load_spec(to)
     teachers = [load_teacher(registry, ref) for ref in teacher_refs]
-    refs = [t.card.ref for t in teachers]
-    twice = sorted({ref for ref in refs if refs.count(ref) > 1})
-    if twice:  # the same representation offered twice only splits the student's attention
-        raise MiktError(f"teacher {twice[0]} is given more than once")
+    by_content: dict[str, str] = {}  # tensors' sha256 (verified on load) → the ref that brought them
+    for t in teachers:  # the same representation offered twice only splits the student's attention
+        sha, ref = t.card.tensors_sha256, t.card.ref
+        if sha in by_content:  # by content: one policy imported or copied under two names or versions too
+            first = by_content[sha]
+            raise MiktError(f"teacher {ref} is given more than once" if first == ref else
+                            f"teachers {first} and {ref} hold the same tensors (sha256 {sha[:12]}…): the same "
+                            "teacher would be given twice")
+        by_content[sha] = ref
     sizes = (check_teachers(teachers, encoder_widths if m.encoder_per_teacher else None, hidden) if teachers
              else (hidden or DEFAULT_HIDDEN, hidden or DEFAULT_HIDDEN))
     try:
@@ -80,7 +89,7 @@ def start_transfer(
     except ValidationError as err:
         raise MiktError(f"bad PPO setting: {describe_validation_error(err)}") from err
     config = RunConfig(ppo=ppo, pi_hidden=sizes[0], vf_hidden=sizes[1],
-                       options=None if parsed is None else parsed.model_dump())
+                       options=None if parsed is None else parsed.model_dump(), eval_episodes=eval_episodes)
     return new_run(registry, kind="transfer", env=to, method=method, seed=seed, total_steps=steps, config=config,
                    command=command, teachers=[teacher_ref(t) for t in teachers])
 
