@@ -225,18 +225,28 @@ def load_spec_file(path: Path) -> AnySpec:
     return spec
 
 
+def _folders(directory: Path | None) -> list[Path]:
+    return [directory] if directory is not None else spec_dirs()
+
+
 def _spec_files(directory: Path | None) -> dict[str, Path]:
-    """name → spec file, the first folder of `spec_dirs` winning (or only `directory` when given)."""
+    """name → spec file, the first folder of `spec_dirs` winning (or only `directory` when given). A folder
+    named x.toml is not a spec: it neither counts as one nor hides a shipped x.toml (see `_stray_folders`)."""
     files: dict[str, Path] = {}
-    for folder in [directory] if directory is not None else spec_dirs():
+    for folder in _folders(directory):
         for path in sorted(folder.glob("*.toml")):
-            files.setdefault(path.stem, path)
+            if path.is_file():
+                files.setdefault(path.stem, path)
     return dict(sorted(files.items()))
 
 
+def _stray_folders(directory: Path | None) -> list[Path]:
+    """Folders named *.toml among the spec folders: named by `scan_specs` so the user can tell why."""
+    return [path for folder in _folders(directory) for path in sorted(folder.glob("*.toml")) if path.is_dir()]
+
+
 def spec_names(directory: Path | None = None) -> list[str]:
-    # a folder named x.toml is not a spec: scan_specs names it as such, and it is never offered as a name
-    return [name for name, path in _spec_files(directory).items() if path.is_file()]
+    return list(_spec_files(directory))
 
 
 def load_spec(name: str, directory: Path | None = None) -> AnySpec:
@@ -260,7 +270,7 @@ def load_all_specs(directory: Path | None = None) -> list[AnySpec]:
 def scan_specs(directory: Path | None = None) -> tuple[list[AnySpec], list[MiktError]]:
     """The valid specs, and one error per file that is not (a bad file never hides the good ones)."""
     good, bad = [], []
-    for path in _spec_files(directory).values():
+    for path in [*_spec_files(directory).values(), *_stray_folders(directory)]:
         try:
             good.append(load_spec_file(path))
         except MiktError as err:
