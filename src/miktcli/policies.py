@@ -46,6 +46,12 @@ class ActorCritic(nn.Module):
     def evaluate_actions(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
         return self.action_mean(obs), self.value(obs), {}
 
+    def mean_and_value(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """`evaluate_actions(obs)`'s mean and value without its extra loss terms (the pass over the whole
+        rollout after it, which needs no losses); the same numbers."""
+        mean, value, _ = self.evaluate_actions(obs)
+        return mean, value
+
     def rollout_actor(self, obs: torch.Tensor) -> Callable[[], torch.Tensor]:
         """A function computing `action_mean(obs)` for the rollout's fixed input tensor `obs` (refilled in
         place each step), called under torch.inference_mode. A module may return one that reuses buffers; it

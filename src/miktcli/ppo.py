@@ -310,7 +310,7 @@ class PPOTrainer:
         obs = torch.from_numpy(ro.obs.reshape(T * N, -1))
         with torch.no_grad():
             # One batched pass after the rollout: the network did not change during it.
-            mean, values, _ = agent.evaluate_actions(obs)
+            mean, values = agent.mean_and_value(obs)
             values = values.numpy().reshape(T, N).astype(np.float64)
             last_values = agent.value(torch.from_numpy(ro.last_obs)).numpy().astype(np.float64)
             next_values = np.concatenate([values[1:], last_values[None]], axis=0)
