@@ -18,9 +18,11 @@ JsonOption = Annotated[bool, typer.Option("--json", help="Print as JSON (data on
 SeedOption = Annotated[int, typer.Option("--seed", min=0, max=2**32 - 1, help="Random seed.")]
 StepsOption = Annotated[int, typer.Option("--steps", min=1, help="Environment steps (the paper: 2M).")]
 NumEnvsOption = Annotated[int, typer.Option("--num-envs", min=1, help="Synchronous environments (the paper: 1).")]
-CompileOption = Annotated[bool, typer.Option(
-    "--compile", help="Compile the PPO loss with torch.compile: faster updates, ~30 s to compile; needs a C++ "
-    "compiler. Recorded in the run.")]
+CompileOption = Annotated[bool | None, typer.Option(
+    "--compile/--no-compile", show_default=False,
+    help="Compile the PPO update with torch.compile (the same maths to float rounding; faster updates, ~20-30 s "
+    "to compile; needs a C++ compiler). Default: auto, on from 500,000 steps when a compiler is found. The "
+    "choice and its reason are recorded in the run.")]
 DEFAULT_REGISTRY = Path("registry")
 
 
@@ -74,3 +76,12 @@ def refuse_options_with_resume(ctx: typer.Context) -> None:
     if given:
         raise typer.BadParameter("cannot be combined with --resume: a resumed run keeps the settings its card "
                                  "records", ctx=ctx, param_hint=f"'{given[0]}'")
+
+
+def note_compile(run) -> None:
+    """Say on stderr which update runs (compiled or eager) and why, as the card records it."""
+    from miktcli.cli.console import err
+
+    ppo = run.card.config.ppo
+    if ppo.compile_reason:
+        err.print(f"update: {'compiled' if ppo.compile_loss else 'eager'} ({ppo.compile_reason})")

@@ -15,6 +15,7 @@ from miktcli.cli.common import (
     SeedOption,
     StepsOption,
     command_line,
+    note_compile,
     note_rounding,
     refuse_options_of_other_methods,
     refuse_options_with_resume,
@@ -50,6 +51,7 @@ def train_transfer_run(run, registry: Path, eval_episodes: int) -> dict:
     sources = ", ".join(f"{t.name}@v{t.version}" for t in run.card.teachers) or "scratch"
     err.print(f"{run.id}: {run.card.method} {sources} → {run.card.env}, {run.card.total_steps} steps, "
               f"seed {run.card.seed} → {run.path}")
+    note_compile(run)
     try:
         with training_progress(run.card.total_steps, run.card.steps_done, run.id) as show:
             return run_to_end(train_transfer(run, registry, eval_episodes), show)
@@ -98,7 +100,7 @@ def transfer(
         None, "--encoder-width", help="Optional check: must equal each teacher's state dim (read from its card)."),
     hidden: str = typer.Option(None, "--hidden", help="Optional check: must equal the teachers' hidden sizes."),
     num_envs: NumEnvsOption = 1,
-    compile_loss: CompileOption = False,
+    compile_loss: CompileOption = None,
     eval_episodes: int = typer.Option(10, "--eval-episodes", min=1, help="Episodes for the final evaluation."),
     resume: str = typer.Option(None, "--resume", help="Continue an interrupted transfer run."),
     as_json: JsonOption = False,

@@ -10,6 +10,7 @@ from typing import Any
 import torch
 from pydantic import ValidationError
 
+from miktcli.compile_choice import decide_compile
 from miktcli.envs import load_spec
 from miktcli.errors import MiktError, describe_validation_error
 from miktcli.methods import get_method
@@ -58,9 +59,10 @@ def teacher_ref(t: Teacher) -> TeacherRef:
 def start_transfer(
     registry: Path, *, to: str, method: str, teacher_refs: list[str], steps: int, seed: int, command: str,
     kl_coef: float | None = None, num_envs: int = 1, options: dict[str, Any] | None = None,
-    encoder_widths: list[int] | None = None, hidden: list[int] | None = None, compile_loss: bool = False,
+    encoder_widths: list[int] | None = None, hidden: list[int] | None = None, compile_loss: bool | None = None,
 ) -> Run:
-    """Check everything a transfer needs, then create its run folder (not yet trained)."""
+    """Check everything a transfer needs, then create its run folder (not yet trained).
+    compile_loss: True/False as asked, None to decide from the run's size (compile_choice.py)."""
     m = get_method(method)
     m.check_teacher_count(len(teacher_refs))
     try:
@@ -75,9 +77,10 @@ def start_transfer(
         raise MiktError(f"teacher {twice[0]} is given more than once")
     sizes = (check_teachers(teachers, encoder_widths if m.name == "mikt" else None, hidden) if teachers
              else (hidden or DEFAULT_HIDDEN, hidden or DEFAULT_HIDDEN))
+    compiled, reason = decide_compile(compile_loss, steps)
     try:
         ppo = PPOConfig(num_envs=num_envs, kl_coef=m.default_kl_coef if kl_coef is None else kl_coef,
-                        compile_loss=compile_loss)
+                        compile_loss=compiled, compile_reason=reason)
     except ValidationError as err:
         raise MiktError(f"bad PPO setting: {describe_validation_error(err)}") from err
     config = RunConfig(ppo=ppo, pi_hidden=sizes[0], vf_hidden=sizes[1],
