@@ -19,8 +19,9 @@ from cross_study import Group, curves_of, method_named, snapshot_runs, table_hea
 
 from miktcli.plots import png_plot
 from miktcli.registry.files import write_text_atomic
-from miktcli.workflows.grid import Grid, PairSpec, file_slug, load_grid
-from miktcli.workflows.report import comparison_table, partial_seed_labels
+from miktcli.studies.grid import Grid, PairSpec, file_slug, load_grid
+from miktcli.studies.render_markdown import comparison_lines
+from miktcli.studies.summary import compare_methods, partial_seed_labels
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -77,7 +78,7 @@ def controls_report(root: Path, main_name: str, others: list[str], method_name: 
         left_out += [problem for problem in found.left_out if problem not in left_out]
         slug = file_slug(pair.name)
         lines += [f"## {pair.name} (seeds {seeds})", "", *table_head(marks), *found.rows]
-        compared, _ = comparison_table(found.per_seed)
+        compared = comparison_lines(compare_methods(found.per_seed))
         lines += compared
         if found.series:
             png_plot(found.series, root / f"controls-{slug}.png", pair.name, "mean episode return", found.bands,

@@ -16,8 +16,8 @@ import numpy as np
 
 from miktcli.registry.cards import RunCard
 from miktcli.registry.runs import Run
-from miktcli.workflows.grid import Grid, MethodSpec, PairSpec
-from miktcli.workflows.report import completed_curves, mean_pm_std, sample_std
+from miktcli.studies.grid import Grid, MethodSpec, PairSpec
+from miktcli.studies.summary import completed_curves, mean_pm_std, sample_std
 
 RunOf = Callable[[str], "Run | None"]
 
@@ -63,7 +63,7 @@ class Curves:
     series: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     bands: dict[str, list[tuple[float, float, float]]] = field(default_factory=dict)
     weights: dict[str, list[tuple[float, float]]] = field(default_factory=dict)  # mean p_pi_0 per group
-    per_seed: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # for comparison_table
+    per_seed: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # for compare_methods
     left_out: list[str] = field(default_factory=list)
 
     @property

@@ -21,8 +21,9 @@ from cross_study import Group, curves_of, method_named, snapshot_runs, table_hea
 
 from miktcli.plots import png_plot
 from miktcli.registry.files import write_text_atomic
-from miktcli.workflows.grid import load_grid
-from miktcli.workflows.report import comparison_table, partial_seed_labels
+from miktcli.studies.grid import load_grid
+from miktcli.studies.render_markdown import comparison_lines
+from miktcli.studies.summary import compare_methods, partial_seed_labels
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -60,7 +61,7 @@ def similarity_report(root: Path, main_name: str, similarity_name: str, method_n
     found = curves_of(groups, seeds, marks)
     lines += found.rows
     # The same over-seeds test as the study and controls reports: which teacher differences the seeds can separate.
-    compared, _ = comparison_table(found.per_seed)
+    compared = comparison_lines(compare_methods(found.per_seed))
     lines += compared
     series, bands, weights, left_out = found.series, found.bands, found.weights, found.left_out
     out = root / similarity_name

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import torch
 
+from miktcli.registry.cards import TeacherVersion
 from miktcli.registry.runs import Run, list_runs
 from miktcli.registry.teachers import load_teacher, versions
 from miktcli.workflows.session import Phase, run_to_end
@@ -50,7 +51,7 @@ def published(env: str, steps: int, seed: int) -> str | None:
     """A committed teacher of `env` trained like this job (raw actions, these steps and seed): the job is
     done even where its run folder is not (a fresh clone holds registry/teachers, not registry/runs)."""
     for version in reversed(versions(REGISTRY, env)):
-        card = load_teacher(REGISTRY, f"{env}@v{version}").card
+        card = load_teacher(REGISTRY, str(TeacherVersion(env, version))).card
         if (card.steps, card.seed, card.clip_actions_for_env) == (steps, seed, False):
             return card.ref
     return None

@@ -4,6 +4,9 @@ import pytest
 import torch
 
 os.environ.setdefault("COLUMNS", "160")
+# Tests see only the registries they make: the teachers packaged with mikt (a read-only layer below every
+# registry) would otherwise number a test's first "hopper" as v3. tests/test_packaged_teachers.py turns it on.
+os.environ["MIKT_PACKAGED_TEACHERS"] = "0"
 torch.set_num_threads(1)
 
 

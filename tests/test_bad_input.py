@@ -2,6 +2,7 @@
 one-line error (exit 1) or a usage error (exit 2), never an internal error or a silent wrong answer."""
 
 import json
+import os
 import shutil
 
 import pytest
@@ -204,7 +205,7 @@ def test_a_study_refuses_runs_its_registry_lacks_unless_told_to_retrain(registry
 
 def grid_error(tmp_path, body):
     from miktcli.errors import MiktError
-    from miktcli.workflows.grid import load_grid
+    from miktcli.studies.grid import load_grid
 
     (tmp_path / "g.toml").write_text(body)
     with pytest.raises(MiktError) as caught:
@@ -258,13 +259,19 @@ def test_an_empty_or_reversed_coupling_ramp_is_refused(registry):
 
 
 def test_an_unwritable_study_folder_is_found_before_any_run_exists(registry, tmp_path, monkeypatch):
-    import miktcli.workflows.study as study_module
+    import miktcli.registry.locks as locks
 
     grid = tmp_path / "g.toml"
     grid.write_text(GRID.format(episodes=1))
-    out, real_access = tmp_path / "out", study_module.os.access
-    monkeypatch.setattr(study_module.os, "access", lambda path, mode: path != out and real_access(path, mode))
-    assert "cannot write the study's results" in mikt("study", grid, "--out", out, code=1).output
+    out, real_open = tmp_path / "out", locks.os.open
+
+    def no_permission(path, *args):  # as in a folder this user cannot write (the tests may run as root)
+        if os.path.dirname(path) == str(out):
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_open(path, *args)
+
+    monkeypatch.setattr(locks.os, "open", no_permission)
+    assert "cannot write the study's results to" in mikt("study", grid, "--out", out, code=1).output
     assert not (registry / "runs").exists()
 
 

@@ -125,8 +125,8 @@ def test_controls_report_puts_the_main_grids_runs_beside_the_controls_on_common_
 
 
 def test_snapshots_restore_into_a_fresh_registry_so_the_study_skips_finished_cells(registry, tmp_path):
-    from miktcli.workflows.grid import cell_key, load_grid
-    from miktcli.workflows.study import Study
+    from miktcli.studies.grid import cell_key, load_grid
+    from miktcli.studies.study import Study
 
     grid_file = tmp_path / "g.toml"
     grid_file.write_text('name = "g"\nsteps = 6144\nseeds = [0, 1, 2]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
@@ -207,7 +207,7 @@ def test_an_in_flight_snapshot_carries_an_unfinished_run_to_another_machine(regi
     assert (out / "runs" / run_id / "run.json").exists() and not kept.exists()
 
 def test_every_committed_grid_loads():
-    from miktcli.workflows.grid import load_grid
+    from miktcli.studies.grid import load_grid
 
     grids = sorted((BENCHMARKS / "grids").glob("*.toml"))
     assert len(grids) >= 9
@@ -234,3 +234,37 @@ def test_throughput_quick_run_writes_its_tables_and_figures(tmp_path):
     ratios = throughput.ratios(res)
     assert ratios["teacher_vs_sb3_script"] == 11.0 / 10.0 and ratios["two_teachers_vs_ppo"] == 14.0 / 12.0
     assert "two-teacher transfer" in throughput.markdown({**res, "ratios": ratios})
+
+
+def test_aggregate_report_normalises_by_random_and_the_baseline_per_target(registry, tmp_path):
+    from miktcli.studies.grid import load_grid
+
+    grid_file, study = tmp_path / "agg.toml", tmp_path / "agg"
+    grid_file.write_text(GRID.format(
+        name="agg", seeds="[0, 1]", baseline="vpg", extra='[[methods]]\nname = "vpg"\nmethod = "vpg"\n',
+        pairs='[[pairs]]\nfrom = ["four"]\nto = "hopper"\n[[pairs]]\nfrom = ["four"]\nto = "ant"\n'))
+    cells = {  # final returns: vpg hopper 10, 30 (R_vpg 20), ant 20, 40 (R_vpg 30); mikt twice to thrice that
+        "->hopper|vpg|0": fake_run(registry, "hopper", "vpg", 0, [0, 0, 10], 1),
+        "->hopper|vpg|1": fake_run(registry, "hopper", "vpg", 1, [0, 0, 30], 1),
+        "->ant|vpg|0": fake_run(registry, "ant", "vpg", 0, [0, 0, 20], 1),
+        "->ant|vpg|1": fake_run(registry, "ant", "vpg", 1, [0, 0, 40], 1),
+        "four>hopper|mikt|0": fake_run(registry, "hopper", "mikt", 0, [0, 0, 40], 1),
+        "four>hopper|mikt|1": fake_run(registry, "hopper", "mikt", 1, [0, 0, 60], 1),
+        "four>ant|mikt|0": fake_run(registry, "ant", "mikt", 0, [0, 0, 50], 1),
+        "four>ant|mikt|1": fake_run(registry, "ant", "mikt", 1, [0, 0, 70], 1),
+    }
+    study.mkdir()
+    (study / "state.json").write_text(json.dumps(cells))
+    for run_id in cells.values():
+        shutil.copytree(registry / "runs" / run_id, study / "runs" / run_id)
+    path = load_script("aggregate_report").aggregate_report(study, load_grid(grid_file), {"hopper": 0.0, "ant": 5.0},
+                                                            n_resamples=500)
+    text = path.read_text()
+    final = text.split("## Final return")[1].split("## Mean over training")[0]
+    # normalised: hopper mikt 2, 3, vpg 0.5, 1.5; ant (random 5) mikt 1.8, 2.6, vpg 0.6, 1.4. IQM of the four
+    # pooled: the middle two (2, 2.6 → 2.3; 0.6, 1.4 → 1); mikt beats every vpg run
+    assert "| mikt | 4 | 2 | 2.30 [" in final and "| vpg | 4 | 2 | 1.00 [" in final
+    assert "| mikt vs vpg | 1.00 [1.00, 1.00] | 2 |" in final
+    assert "| four → ant | 2.20 | 1.00 |" in final  # two runs: nothing trimmed
+    assert "| ant | 5.0 | 30 | 2 |" in text
+    assert (study / "aggregate-profile.png").read_bytes()[:4] == b"\x89PNG"

@@ -68,7 +68,7 @@ def test_end_to_end_teacher_transfer_inspect_eval(registry, tmp_path):
     assert teacher_file.read_bytes() == before  # the teacher stayed frozen
 
     r = mikt("inspect", "run2", "--coupling", "--plot", tmp_path / "p.png")
-    assert "p_pi_0" in r.stdout and (tmp_path / "p.png").exists()
+    assert "layer 0 student" in r.stdout and "layer 1 centipede-four" in r.stdout and (tmp_path / "p.png").exists()
     assert "mean return" in mikt("inspect", "run2", "--curve").stdout
     everything = json.loads(mikt("inspect", "run2", "--json").stdout)
     assert everything["card"]["teachers"][0]["obs_dim"] == 97  # the encoder's width, from the teacher's card
@@ -101,10 +101,16 @@ def test_end_to_end_teacher_transfer_inspect_eval(registry, tmp_path):
          {"method": "mikt", "kl_coef": 0.0, "rl_encoder_grad": False}, {"loss_mi"}, {"loss_kl"}),
         (("--from", "tiny", "--lateral", "projection"), {"method": "mikt", "lateral": "projection"},
          {"loss_mi", "loss_kl"}, set()),
-        (("--from", "tiny@v1", "--from", "tiny@v2"), {"method": "mikt", "teachers": 2}, {"p_pi_0", "loss_mi"},
-         set()),
+        (("--from", "tiny@v1", "--from", "tiny@v2"), {"method": "mikt", "teachers": 2, "mixing": "per-teacher"},
+         {"p_pi_0", "w_pi_0_t0", "w_vf_1_t1", "loss_mi"}, {"w_pi_0_shared"}),
+        (("--from", "tiny@v1", "--from", "tiny@v2", "--mixing", "shared", "--lateral", "projection"),
+         {"method": "mikt", "teachers": 2, "mixing": "shared", "lateral": "projection"},
+         {"p_pi_0", "w_pi_0_shared", "w_vf_1_shared", "loss_mi"}, {"w_pi_0_t0"}),
+        (("--from", "tiny", "--coupling-ramp", "student-weight", "--mi-log-std-min", "-11"),
+         {"method": "mikt", "coupling_ramp": "student-weight", "mi_log_std_min": -11.0}, {"loss_mi"}, set()),
     ],
-    ids=["vpg", "mlpp", "no-mi", "no-rl-grad-no-kl", "projection", "two-teachers"],
+    ids=["vpg", "mlpp", "no-mi", "no-rl-grad-no-kl", "projection", "two-teachers", "two-teachers-shared",
+         "student-weight-ramp"],
 )
 def test_methods_and_ablations_are_recorded_and_change_what_is_trained(
         registry, args, card, metrics_present, metrics_absent):
@@ -122,6 +128,22 @@ def test_methods_and_ablations_are_recorded_and_change_what_is_trained(
     assert {k: recorded[k] for k in card} == card
     assert metrics_present <= set(metrics) and not metrics_absent & set(metrics)
     assert config["ppo"]["clip_actions_for_env"] is False
+
+
+@pytest.mark.parametrize("mixing", ["per-teacher", "shared"])
+def test_inspect_coupling_shows_and_plots_every_teachers_weight(registry, tmp_path, mixing):
+    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "hop")
+    mikt("teacher", "train", "centipede-four", "--steps", 2048, "--name", "four")
+    mikt("transfer", "--from", "hop", "--from", "four", "--to", "centipede-four", "--steps", 4096,
+         "--mixing", mixing, "--coupling-schedule", "constant", "--eval-episodes", 1)
+    png = tmp_path / "w.png"
+    out = mikt("inspect", "run3", "--coupling", "--plot", png).stdout
+    assert "policy: weight of each source per layer" in out and "value: weight" in out
+    teachers = ["hop", "four"] if mixing == "per-teacher" else ["hop + four (shared)"]
+    for layer in (0, 1):
+        assert f"layer {layer} student" in out
+        assert all(f"layer {layer} {name}" in out for name in teachers)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_ctrl_c_keeps_the_last_checkpoint_and_resumes(registry, ctrl_c_at_second_update):

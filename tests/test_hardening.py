@@ -312,8 +312,8 @@ def test_a_resumed_run_ends_exactly_like_an_uninterrupted_one(registry, ctrl_c_a
 
 def test_a_prepared_run_that_never_trained_is_not_started_rather_than_stale(registry):
     from miktcli.registry.runs import open_run
-    from miktcli.workflows.grid import Grid, cell_key
-    from miktcli.workflows.study import Study
+    from miktcli.studies.grid import Grid, cell_key
+    from miktcli.studies.study import Study
     from miktcli.workflows.transfer import start_transfer
 
     run = start_transfer(registry, to="centipede-four", method="vpg", teacher_refs=[], steps=2048, seed=0,

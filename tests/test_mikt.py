@@ -1,3 +1,5 @@
+import math
+
 import pytest
 import torch
 
@@ -142,11 +144,12 @@ def test_mlpp_copies_the_middle_stack():
 
 @pytest.mark.parametrize("teachers", [1, 2, 3])
 @pytest.mark.parametrize("lateral", ["identity", "projection"])
-def test_the_rollout_forward_gives_the_same_bits_as_action_mean(teachers, lateral):
+@pytest.mark.parametrize("mixing", ["per-teacher", "shared"])
+def test_the_rollout_forward_gives_the_same_bits_as_action_mean(teachers, lateral, mixing):
     torch.manual_seed(teachers)
     dims = [(97, 10), (139, 16), (11, 3)][:teachers]
     agent = MiktActorCritic(181, 22, [frozen_teacher(*d) for d in dims],
-                            MiktConfig(lateral=lateral, rl_encoder_grad=teachers != 2))
+                            MiktConfig(lateral=lateral, mixing=mixing, rl_encoder_grad=teachers != 2))
     with torch.no_grad():  # mixing weights away from their init, so every term counts
         agent.mix_logits_pi.normal_()
     x = torch.empty(1, 181)
@@ -164,3 +167,102 @@ def test_mean_and_value_equal_evaluate_actions(agent):
     mean, value, losses = agent.evaluate_actions(obs)
     assert losses  # the full pass also computes the extra terms; mean_and_value skips them
     assert all(torch.equal(a, b) for a, b in zip(agent.mean_and_value(obs), (mean, value), strict=True))
+
+
+# --- several teachers: the two mixing forms --------------------------------------------------------------
+
+def two_teacher_agent(mixing, lateral="identity", **options):
+    torch.manual_seed(0)
+    return MiktActorCritic(181, 22, [frozen_teacher(97, 10), frozen_teacher(139, 16)],
+                           MiktConfig(mixing=mixing, lateral=lateral, coupling_schedule="constant", **options))
+
+
+@pytest.mark.parametrize("mixing", ["per-teacher", "shared"])
+def test_mixing_weights_are_a_distribution_over_the_forms_sources(mixing):
+    agent = two_teacher_agent(mixing)
+    sources = 1 + (2 if mixing == "per-teacher" else 1)  # shared: exactly two logits per layer
+    for w in agent.mixing_weights():
+        assert w.shape == (2, sources)
+        assert torch.allclose(w.sum(-1), torch.ones(2))
+    assert agent.mixing_weights()[0][0, 0].item() == pytest.approx(initial_student_weight(2, mixing), abs=1e-6)
+    assert initial_student_weight(2, "shared") == pytest.approx(0.4725, abs=1e-4)
+    assert initial_student_weight(2) == pytest.approx(0.3094, abs=1e-4)
+
+
+@pytest.mark.parametrize("lateral", ["identity", "projection"])
+def test_shared_mixing_is_one_teacher_share_over_the_sum_of_the_teachers(lateral):
+    agent = two_teacher_agent("shared", lateral)
+    with torch.no_grad():
+        agent.mix_logits_pi.copy_(torch.tensor([[0.3, -0.2], [0.1, 0.4]]))
+    obs = torch.randn(6, 181)
+    embs = agent.embeddings(obs)
+    w = torch.softmax(agent.mix_logits_pi, -1)
+    x = obs
+    for j, (weight, bias) in enumerate(agent.pi.layer_params):
+        zs = [t.pi.preactivations(e)[j] for t, e in zip(agent.teachers, embs, strict=True)]
+        if lateral == "projection":
+            zs = [z @ us[j].weight.T for z, us in zip(zs, agent.lateral_pi, strict=True)]
+        x = torch.tanh(w[j, 0] * (x @ weight.T + bias) + w[j, 1] * (zs[0] + zs[1]))
+    expected = x @ agent.pi.head.weight.T + agent.pi.head.bias
+    assert torch.allclose(agent.action_mean(obs), expected, atol=1e-5)
+
+
+def test_per_teacher_mixing_weighs_each_teacher_by_its_own_logit():
+    agent = two_teacher_agent("per-teacher")
+    with torch.no_grad():
+        agent.mix_logits_vf.copy_(torch.tensor([[0.3, -0.2, 0.5], [0.1, 0.4, -1.0]]))
+    obs = torch.randn(6, 181)
+    embs = agent.embeddings(obs)
+    w = torch.softmax(agent.mix_logits_vf, -1)
+    x = obs
+    for j, (weight, bias) in enumerate(agent.vf.layer_params):
+        zs = [t.vf.preactivations(e)[j] for t, e in zip(agent.teachers, embs, strict=True)]
+        x = torch.tanh(w[j, 0] * (x @ weight.T + bias) + w[j, 1] * zs[0] + w[j, 2] * zs[1])
+    expected = (x @ agent.vf.head.weight.T + agent.vf.head.bias).squeeze(-1)
+    assert torch.allclose(agent.value(obs), expected, atol=1e-5)
+
+
+@pytest.mark.parametrize("lateral", ["identity", "projection"])
+def test_with_one_teacher_the_two_mixing_forms_are_the_same_model(lateral):
+    # one teacher: softmax over [student, teacher] either way, the same parameters drawn in the same order
+    agents = []
+    for mixing in ("per-teacher", "shared"):
+        torch.manual_seed(3)
+        agents.append(MiktActorCritic(139, 16, [frozen_teacher(97, 10)], MiktConfig(mixing=mixing, lateral=lateral)))
+    per, shared = agents
+    assert per.state_dict().keys() == shared.state_dict().keys()
+    assert all(torch.equal(v, shared.state_dict()[k]) for k, v in per.state_dict().items())
+    obs = torch.randn(8, 139)
+    for a, b in zip(per.evaluate_actions(obs)[:2], shared.evaluate_actions(obs)[:2], strict=True):
+        assert torch.equal(a, b)
+    assert per.diagnostics() == shared.diagnostics()
+
+
+@pytest.mark.parametrize("mixing", ["per-teacher", "shared"])
+def test_teacher_weights_are_logged_per_layer_and_teacher(mixing):
+    agent = two_teacher_agent(mixing)
+    d = agent.diagnostics()
+    names = ["t0", "t1"] if mixing == "per-teacher" else ["shared"]
+    for branch in ("pi", "vf"):
+        for j in range(2):
+            total = d[f"p_{branch}_{j}"] + sum(d[f"w_{branch}_{j}_{n}"] for n in names)
+            assert total == pytest.approx(1.0)
+    agent.teacher_active = False
+    assert all(v == 0.0 for k, v in agent.diagnostics().items() if k.startswith("w_"))
+
+
+def test_one_teacher_logs_no_teacher_weights_of_its_own(agent):
+    assert not [k for k in agent.diagnostics() if k.startswith("w_")]
+
+
+def test_student_weight_ramp_pushes_only_layers_below_the_schedule():
+    torch.manual_seed(0)
+    agent = MiktActorCritic(97, 10, [frozen_teacher(97, 10)], MiktConfig(coupling_ramp="student-weight"))
+    obs = torch.randn(4, 97)
+    agent.set_progress(0.45 + 0.45 * 0.3)  # floor 0.3, below p = 0.4725: nothing to push
+    assert agent.evaluate_actions(obs)[2]["loss_coupling"].item() == 0.0
+    agent.set_progress(0.45 + 0.45 * 0.8)  # floor 0.8: -log p + log 0.8 on every layer
+    expected = (1.0 + 0.1) * (math.log(0.8) - math.log(initial_student_weight()))
+    assert agent.evaluate_actions(obs)[2]["loss_coupling"].item() == pytest.approx(expected, rel=1e-5)
+    with pytest.raises(ValueError, match="constant schedule has none"):
+        MiktConfig(coupling_ramp="student-weight", coupling_schedule="constant")

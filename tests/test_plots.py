@@ -47,7 +47,7 @@ def test_a_legend_can_say_more_than_the_name_while_the_colour_stays_the_names():
 
 
 def test_only_curves_of_fewer_seeds_than_the_grid_are_labelled_with_their_count():
-    from miktcli.workflows.report import partial_seed_labels
+    from miktcli.studies.summary import partial_seed_labels
 
     assert partial_seed_labels({"mikt": 5, "vpg": 5, "mlpp": 1}, 5) == {"mlpp": "mlpp (1 of 5 seeds)"}
     assert partial_seed_labels({"mikt": 1}, 1) == {}

@@ -65,9 +65,9 @@ def setup(tmp_path, monkeypatch, name):
 
 def test_parallel_study_equals_serial_and_survives_interruption_and_a_killed_worker(
         local_ray, tmp_path, monkeypatch):
-    from miktcli.workflows.grid import load_grid
-    from miktcli.workflows.ray_executor import FAULT_ENV, run_cells_on_ray
-    from miktcli.workflows.study import Study
+    from miktcli.studies.grid import load_grid
+    from miktcli.studies.ray_executor import FAULT_ENV, run_cells_on_ray
+    from miktcli.studies.study import Study
 
     registry, grid = setup(tmp_path, monkeypatch, "serial")
     serial = tmp_path / "serial"
@@ -109,7 +109,7 @@ def test_parallel_study_equals_serial_and_survives_interruption_and_a_killed_wor
 
 
 def test_workers_without_ray_names_the_extra(tmp_path, monkeypatch):
-    import miktcli.workflows.ray_executor as executor
+    import miktcli.studies.ray_executor as executor
 
     def missing():
         from miktcli.errors import MiktError

@@ -55,8 +55,8 @@ def fake_run(registry, env, method, seed, curve, eval_return, mixing=None, teach
 
 
 def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
-    from miktcli.workflows.grid import cell_key, load_grid
-    from miktcli.workflows.study import Study
+    from miktcli.studies.grid import cell_key, load_grid
+    from miktcli.studies.study import Study
 
     grid_file = tmp_path / "g.toml"
     grid_file.write_text(
@@ -118,8 +118,8 @@ def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
 
 def test_completed_runs_with_incomplete_files_are_left_out_and_named(registry, tmp_path):
     from miktcli.registry.runs import open_run
-    from miktcli.workflows.grid import Grid
-    from miktcli.workflows.study import Study
+    from miktcli.studies.grid import Grid
+    from miktcli.studies.study import Study
 
     grid = Grid.model_validate({"name": "g", "steps": 6144, "seeds": [0, 1, 2], "marks": [2048, 6144],
                                 "methods": [{"name": "vpg", "method": "vpg"}],
@@ -145,8 +145,8 @@ def test_completed_runs_with_incomplete_files_are_left_out_and_named(registry, t
 
 
 def test_a_pair_without_finished_runs_names_the_same_mark_columns(registry, tmp_path):
-    from miktcli.workflows.grid import Grid
-    from miktcli.workflows.study import Study
+    from miktcli.studies.grid import Grid
+    from miktcli.studies.study import Study
 
     grid = Grid.model_validate({"name": "g", "steps": 6144, "seeds": [0], "marks": [4000, 6144],
                                 "methods": [{"name": "vpg", "method": "vpg"}],
@@ -164,8 +164,8 @@ def test_any_method_without_teachers_is_shared_per_target(monkeypatch, registry,
 
     from miktcli.methods import METHODS
     from miktcli.methods.vpg import METHOD as VPG
-    from miktcli.workflows.grid import Grid, cell_key
-    from miktcli.workflows.study import Study
+    from miktcli.studies.grid import Grid, cell_key
+    from miktcli.studies.study import Study
 
     # a new from-scratch method is known by its Method record (max_teachers = 0), not by its name
     monkeypatch.setitem(METHODS, "scratch", dataclasses.replace(VPG, name="scratch"))
@@ -178,7 +178,7 @@ def test_any_method_without_teachers_is_shared_per_target(monkeypatch, registry,
 
 def test_grids_with_duplicate_methods_or_pairs_are_refused(tmp_path):
     from miktcli.errors import MiktError
-    from miktcli.workflows.grid import load_grid
+    from miktcli.studies.grid import load_grid
 
     base = 'name = "x"\nsteps = 2048\nseeds = [0]\n'
     pair = '[[pairs]]\nfrom = ["a"]\nto = "hopper"\n'
@@ -205,8 +205,8 @@ def test_unknown_teacher_is_found_before_any_cell_trains(registry, tmp_path):
 
 def test_a_cell_whose_run_id_now_names_another_run_is_an_error_not_a_result(registry, tmp_path):
     """state.json outliving its runs (a registry restored or reset) must not credit a cell with another run."""
-    from miktcli.workflows.grid import cell_key, load_grid
-    from miktcli.workflows.study import Study
+    from miktcli.studies.grid import cell_key, load_grid
+    from miktcli.studies.study import Study
 
     grid_file = tmp_path / "g.toml"
     grid_file.write_text('name = "g"\nsteps = 6144\nseeds = [0]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
@@ -223,8 +223,8 @@ def test_a_cell_whose_run_id_now_names_another_run_is_an_error_not_a_result(regi
 
 def test_a_study_start_turns_never_trained_running_or_interrupted_cells_into_created(registry, tmp_path):
     from miktcli.registry.runs import open_run
-    from miktcli.workflows.grid import load_grid
-    from miktcli.workflows.study import Study
+    from miktcli.studies.grid import load_grid
+    from miktcli.studies.study import Study
 
     grid_file = tmp_path / "g.toml"
     grid_file.write_text('name = "g"\nsteps = 6144\nseeds = [0, 1, 2]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
@@ -240,7 +240,7 @@ def test_a_study_start_turns_never_trained_running_or_interrupted_cells_into_cre
 
 def test_the_ray_progress_overview_counts_cells_and_estimates_the_end():
     from miktcli.cli.study import _overview
-    from miktcli.workflows.ray_executor import CellProgress
+    from miktcli.studies.ray_executor import CellProgress
 
     cells = [CellProgress("a", "run1", 100, steps=100, state="completed"),
              CellProgress("b", "run2", 100, steps=40, steps_per_sec=5.0, state="training"),
@@ -263,3 +263,18 @@ def test_an_unknown_target_env_is_an_error_even_for_report_only(registry, tmp_pa
         assert r.exit_code == 1, r.output
         assert "pair t → centipede-nine: unknown environment 'centipede-nine'" in r.output
     assert not (tmp_path / "o").exists() and not (registry / "runs").exists()
+
+
+def test_every_committed_grid_loads_and_its_options_validate():
+    from miktcli.methods import get_method
+    from miktcli.studies.grid import load_grid
+    from miktcli.studies.study import Study
+
+    grids = sorted((GRID.parent).glob("*.toml"))
+    assert any(g.name == "multi-screen.toml" for g in grids)
+    for path in grids:
+        grid = load_grid(path)
+        for method in grid.methods:  # what the study does before the first cell: an unknown option fails here
+            get_method(method.method).parse_options(method.options)
+        if grid.name == "multi-screen":
+            assert len(Study(grid, Path("/nonexistent"), Path("/nonexistent")).distinct_cells()) <= 16

@@ -1,5 +1,6 @@
-"""The one exception type the CLI turns into a one-line `Error: ...` and exit code 1, and the one formatter
-for pydantic validation errors (cards, specs, grids, options all read the same way)."""
+"""The one exception type the CLI turns into a one-line `Error: ...` and exit code 1 (with the subtypes whose
+cause the CLI names by its flag), and the one formatter for pydantic validation errors (cards, specs, grids,
+options all read the same way)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,39 @@ class MiktError(Exception):
     def __init__(self, message: str, hint: str | None = None):
         super().__init__(message)
         self.hint = hint
+
+
+# Failures the CLI explains in terms of its flags: each type says which input caused it, so the mapping to a
+# flag (cli/transfer.py) never depends on a message's wording.
+
+class TeacherCountError(MiktError):
+    """A method given fewer or more teachers than it takes."""
+
+    def __init__(self, message: str, *, given: int, minimum: int, maximum: int | None):
+        super().__init__(message)
+        self.given, self.minimum, self.maximum = given, minimum, maximum
+
+
+class TeacherMismatchError(MiktError):
+    """A teacher contradicting what the call stated about it: `stated` names that input (`encoder_widths`,
+    `hidden`); None when the teachers disagree with each other."""
+
+    def __init__(self, message: str, *, stated: str | None):
+        super().__init__(message)
+        self.stated = stated
+
+
+class MethodOptionError(MiktError):
+    """A method option that its method's options model refuses (`option`: the field, when one is to blame)."""
+
+    def __init__(self, message: str, *, method: str, option: str | None):
+        super().__init__(message)
+        self.method, self.option = method, option
+
+
+class EnvKeywordError(MiktError, TypeError):
+    """A keyword of `gym.make("mikt/NAME", ...)` that the env's spec decides; a TypeError too, as Python's own
+    refusal of an unexpected keyword would be."""
 
 
 _OS_HINTS = {

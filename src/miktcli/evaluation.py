@@ -9,6 +9,9 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from miktcli.envs.failures import env_failure
+from miktcli.render import render_frame
+
 
 @dataclass
 class EvalResult:
@@ -27,7 +30,7 @@ class EvalResult:
 
 def run_episodes(
     act: Callable[[torch.Tensor], torch.Tensor], env: gym.Env, episodes: int, seed: int,
-    capture_episodes: int = 0, frame_every: int = 1, clip_actions: bool = False,
+    capture_episodes: int = 0, frame_every: int = 1, clip_actions: bool = False, max_frames: int | None = None,
 ) -> EvalResult:
     """`act` maps a raw observation batch (1, obs_dim) to actions; frames come from the first episodes.
 
@@ -36,14 +39,22 @@ def run_episodes(
     result = EvalResult([], [], fps=int(env.metadata.get("render_fps", 20)))
     low, high = env.action_space.low, env.action_space.high
     for ep in range(episodes):
-        obs, _ = env.reset(seed=seed + ep)
+        try:
+            obs, _ = env.reset(seed=seed + ep)
+        except Exception as err:  # noqa: BLE001 - as for step below
+            raise env_failure(env, err, "reset") from err
         total, length, done = 0.0, 0, False
         while not done:
-            if ep < capture_episodes and length % frame_every == 0:
-                result.frames.append(env.render())
+            if ep < capture_episodes and length % frame_every == 0 \
+                    and (max_frames is None or len(result.frames) < max_frames):
+                result.frames.append(render_frame(env))
             with torch.inference_mode():  # actions go straight to numpy
                 action = act(torch.as_tensor(obs, dtype=torch.float32)[None])[0].numpy()
-            obs, reward, terminated, truncated, _ = env.step(np.clip(action, low, high) if clip_actions else action)
+            try:
+                obs, reward, terminated, truncated, _ = env.step(np.clip(action, low, high) if clip_actions
+                                                                 else action)
+            except Exception as err:  # noqa: BLE001 - an env's own code: name its spec, not a mikt bug
+                raise env_failure(env, err, "step") from err
             total += float(reward)
             length += 1
             done = terminated or truncated

@@ -1,8 +1,6 @@
-"""Puts all trainable parameters (and their gradients) into one contiguous buffer.
-
-For 64-64 networks the PPO update is dominated by per-tensor overhead, not arithmetic: Adam and the
-gradient-norm clip touch ~15 small tensors per step. With every parameter a view into one flat tensor,
-both become a handful of ops on a single tensor (measured in benchmarks/throughput.py).
+"""Puts all trainable parameters (and their gradients) into one contiguous buffer, so that Adam and the
+gradient-norm clip are a handful of ops on one tensor: on networks this small, the cost per tensor, not the
+arithmetic, decides the update's speed.
 """
 
 from __future__ import annotations

@@ -37,10 +37,14 @@ def update_moments(mean: np.ndarray, var: np.ndarray, count: float, batch: np.nd
 
 
 class ObsNormalizer(nn.Module):
-    """Running mean/std of observations; normalises and clips to ±10. Float64 statistics as buffers."""
+    """Running mean/std of observations; normalises and clips to ±10. Float64 statistics as buffers.
 
-    def __init__(self, dim: int):
+    `clip` is not a buffer (state dicts stay as they were): a teacher imported without statistics saw raw
+    observations, never clipped, and its card says so (TeacherCard.obs_clip None → no clip)."""
+
+    def __init__(self, dim: int, clip: float = OBS_CLIP):
         super().__init__()
+        self.clip = clip
         self.register_buffer("mean", torch.zeros(dim, dtype=torch.float64))
         self.register_buffer("var", torch.ones(dim, dtype=torch.float64))
         self.register_buffer("count", torch.zeros((), dtype=torch.float64))
@@ -55,7 +59,7 @@ class ObsNormalizer(nn.Module):
     def normalize_np(self, obs: np.ndarray) -> np.ndarray:
         """The rollout's hot path: numpy in, float32 numpy out."""
         mean, var = self.mean.numpy(), self.var.numpy()
-        return np.clip((obs - mean) / np.sqrt(var + NORM_EPS), -OBS_CLIP, OBS_CLIP).astype(np.float32)
+        return np.clip((obs - mean) / np.sqrt(var + NORM_EPS), -self.clip, self.clip).astype(np.float32)
 
     def rollout(self, num_envs: int) -> RolloutNormalizer:
         """The rollout's per-step update and normalisation over numpy views of these buffers, without
@@ -64,7 +68,7 @@ class ObsNormalizer(nn.Module):
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         out = (obs.double() - self.mean) / torch.sqrt(self.var + NORM_EPS)
-        return out.clamp(-OBS_CLIP, OBS_CLIP).float()
+        return out.clamp(-self.clip, self.clip).float()
 
 
 class RolloutNormalizer:
@@ -133,7 +137,7 @@ class MLP(nn.Module):
             orthogonal_linear(a, b, math.sqrt(2.0)) for a, b in zip(sizes[:-1], sizes[1:], strict=True)
         )
         self.head = orthogonal_linear(sizes[-1], n_out, out_gain)
-        # Plain references for the hot paths: calling nn.Linear modules costs more than the matmuls here.
+        # Plain references for the hot paths (F.linear on them): they skip nn.Module's call overhead.
         self.layer_params = [(layer.weight, layer.bias) for layer in self.hidden]
         self.head_params = (self.head.weight, self.head.bias)
 

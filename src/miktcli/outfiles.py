@@ -3,23 +3,32 @@ written whole or not at all."""
 
 from __future__ import annotations
 
-import os
+import tempfile
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 from miktcli.errors import MiktError
 
 
 def prepare_output(path: Path) -> Path:
-    """`path` as a file that can be written: not a folder, its folder created and writable."""
+    """`path` as a file that can be written, checked by creating a file beside it (permission bits and
+    os.access say nothing of read-only mounts, /proc, or root's view). Folders made for the check are removed
+    again, so a command that fails later leaves none behind; the write makes them for good."""
     path = Path(path)
     if path.is_dir():
         raise MiktError(f"{path} is a folder; give a file name such as {path / 'out'}{path.suffix or '.png'}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if not os.access(path.parent, os.W_OK):
-        raise MiktError(f"cannot write {path}: {path.parent} is not writable (read-only or no permission)",
-                        hint="choose another path")
+    made = [p for p in [path.parent, *path.parent.parents] if not p.exists()]
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".probe"):
+            pass
+    except OSError as err:
+        raise MiktError(f"cannot write {path}: {err.strerror or err}", hint="choose another path") from None
+    finally:
+        for folder in made:  # deepest first
+            with suppress(OSError):
+                folder.rmdir()
     return path
 
 
@@ -28,6 +37,7 @@ def atomic_output(path: Path, suffix: str) -> Iterator[Path]:
     """A temporary file beside `path` (ending in `suffix`, which writers read the format from) that becomes
     `path` when the block succeeds; on failure it is removed and `path` is left as it was."""
     path = prepare_output(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.part{suffix}")
     try:
         yield tmp

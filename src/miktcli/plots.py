@@ -37,6 +37,8 @@ def text_plot(series: dict[str, list[tuple[float, float]]], width: int = 64, hei
     lines.append(" " * label_w + " └" + "─" * width)
     lines.append(" " * label_w + f"  {x0:,.0f}" + f"{x1:,.0f} steps".rjust(width - len(f"{x0:,.0f}")))
     legend = "  ".join(f"{m} {name}" for m, name in zip(MARKERS, series, strict=False))
+    if len(series) > len(MARKERS):  # one marker per series: say which ones the chart could not draw
+        legend += f"  (not drawn: {', '.join(list(series)[len(MARKERS):])})"
     lines.append(" " * label_w + "  " + legend)
     return "\n".join(lines)
 
@@ -57,7 +59,7 @@ def series_colors(panels: list[Series], palette: list[str], order: Sequence[str]
 
 
 def _draw(ax, series: Series, title: str, ylabel: str, bands: Bands | None, colors: dict[str, str],
-          labels: Mapping[str, str] | None = None) -> None:
+          labels: Mapping[str, str] | None = None, xlabel: str = "environment steps") -> None:
     for name, pts in series.items():
         xs, ys = zip(*pts, strict=True) if pts else ((), ())
         # the legend may say more than the name (a curve of fewer seeds than the others); the colour stays the name's
@@ -66,7 +68,7 @@ def _draw(ax, series: Series, title: str, ylabel: str, bands: Bands | None, colo
             bx, lo, hi = zip(*bands[name], strict=True)
             ax.fill_between(bx, lo, hi, alpha=0.2, color=colors[name])
     ax.set_title(title, fontsize=10)
-    ax.set_xlabel("environment steps")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
@@ -80,7 +82,8 @@ def png_plot(series: Series, path: Path, title: str, ylabel: str, bands: Bands |
 
 
 def png_panels(panels: list[tuple[Series, str, Bands | None]], path: Path, ylabel: str, columns: int = 3,
-               order: Sequence[str] = (), labels: Sequence[Mapping[str, str] | None] = ()) -> Path:
+               order: Sequence[str] = (), labels: Sequence[Mapping[str, str] | None] = (),
+               xlabel: str = "environment steps") -> Path:
     """One panel per (series, title, bands), `columns` to a row, in one PNG (a study's summary figure); series
     colours by name, `order` first (see series_colors); `labels`, one mapping per panel, their legend texts."""
     import matplotlib
@@ -96,7 +99,7 @@ def png_panels(panels: list[tuple[Series, str, Bands | None]], path: Path, ylabe
                            order)
     panel_labels = [*labels, *[None] * (len(panels) - len(labels))]
     for ax, (series, title, bands), names in zip(axes.flat, panels, panel_labels, strict=False):
-        _draw(ax, series, title, ylabel, bands, colors, names)
+        _draw(ax, series, title, ylabel, bands, colors, names, xlabel)
     for ax in list(axes.flat)[len(panels):]:
         ax.set_visible(False)
     fig.tight_layout()
@@ -106,3 +109,14 @@ def png_panels(panels: list[tuple[Series, str, Bands | None]], path: Path, ylabe
     finally:
         plt.close(fig)
     return Path(path)
+
+
+def png_performance_profiles(profiles: Mapping[str, tuple[Sequence[float], Sequence[float], Sequence[float],
+                                                          Sequence[float]]],
+                             path: Path, title: str, xlabel: str = "normalised score τ") -> Path:
+    """Performance profiles (Agarwal et al. 2021): per method (thresholds, fraction above, band low, band high),
+    one curve each with its bootstrap band, in one PNG."""
+    series = {name: list(zip(taus, point, strict=True)) for name, (taus, point, _, _) in profiles.items()}
+    bands = {name: list(zip(taus, low, high, strict=True)) for name, (taus, _, low, high) in profiles.items()}
+    return png_panels([(series, title, bands)], path, "fraction of runs with score > τ", order=list(profiles),
+                      xlabel=xlabel)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 
@@ -18,7 +19,17 @@ from miktcli.cli import study as study_cmd
 from miktcli.cli import teacher as teacher_cmd
 from miktcli.cli import transfer as transfer_cmd
 from miktcli.cli.console import debug_enabled, err, print_error
+from miktcli.cli.method_options import PASS_UNKNOWN_FLAGS, MethodOptionsCommand
 from miktcli.errors import MiktError, describe_os_error
+
+EXIT_BROKEN_PIPE = 1  # what rich's Console gives for a closed pipe under a table: one status for both
+
+
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null, so the interpreter's final flush into the closed pipe says nothing either."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
 
 
 class MiktGroup(TyperGroup):
@@ -26,12 +37,17 @@ class MiktGroup(TyperGroup):
 
     def invoke(self, ctx):
         try:
-            return super().invoke(ctx)
+            result = super().invoke(ctx)
+            sys.stdout.flush()  # here, so a closed pipe is met inside this handler and not at exit
+            return result
         except MiktError as error:
             if debug_enabled():
                 raise
             print_error(error, error.hint)
             raise typer.Exit(1) from None
+        except BrokenPipeError:  # `mikt runs --json | head -n 1`: the reader has all it wanted
+            _quiet_stdout()
+            raise typer.Exit(EXIT_BROKEN_PIPE) from None
         except OSError as error:  # permissions, a full disk, a file where a folder belongs: not a bug
             if debug_enabled():
                 raise
@@ -77,9 +93,10 @@ def root(
 
 app.add_typer(envs_cmd.app, name="envs")
 app.add_typer(teacher_cmd.app, name="teacher")
-app.command("transfer", help=transfer_cmd.HELP, no_args_is_help=True)(transfer_cmd.transfer)
-app.command("eval", help=eval_cmd.HELP, no_args_is_help=True)(eval_cmd.eval_command)
-app.command("inspect", help=inspect_cmd.HELP, no_args_is_help=True)(inspect_cmd.inspect)
+app.command("transfer", help=transfer_cmd.HELP, no_args_is_help=True, cls=MethodOptionsCommand,
+            context_settings=PASS_UNKNOWN_FLAGS)(transfer_cmd.transfer)
+app.command("eval", help=eval_cmd.HELP)(eval_cmd.eval_command)
+app.command("inspect", help=inspect_cmd.HELP)(inspect_cmd.inspect)
 app.command("runs")(runs_cmd.runs)
 app.command("study", help=study_cmd.HELP, no_args_is_help=True)(study_cmd.study)
 

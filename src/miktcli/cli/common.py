@@ -10,14 +10,19 @@ from typing import Annotated
 
 import typer
 
+from miktcli import limits
+from miktcli.errors import MiktError
+
 # Options shared by several commands, declared once.
 RegistryOption = Annotated[Path, typer.Option(
     "--registry", envvar="MIKT_REGISTRY", show_default=False,
     help="Registry folder (default: $MIKT_REGISTRY or ./registry).")]
 JsonOption = Annotated[bool, typer.Option("--json", help="Print as JSON (data on stdout).")]
 SeedOption = Annotated[int, typer.Option("--seed", min=0, max=2**32 - 1, help="Random seed.")]
-StepsOption = Annotated[int, typer.Option("--steps", min=1, help="Environment steps (the paper: 2M).")]
-NumEnvsOption = Annotated[int, typer.Option("--num-envs", min=1, help="Synchronous environments (the paper: 1).")]
+StepsOption = Annotated[int, typer.Option("--steps", min=1, max=limits.MAX_STEPS,
+                                          help="Environment steps (the paper: 2M).")]
+NumEnvsOption = Annotated[int, typer.Option("--num-envs", min=1, max=limits.MAX_NUM_ENVS,
+                                            help="Synchronous environments (the paper: 1).")]
 CompileOption = Annotated[bool | None, typer.Option(
     "--compile/--no-compile", show_default=False,
     help="Compile the PPO update with torch.compile (the same maths to float rounding; faster updates, ~20-30 s "
@@ -72,10 +77,20 @@ def refuse_options_of_other_methods(ctx: typer.Context, method: str, names: set[
 
 def refuse_options_with_resume(ctx: typer.Context) -> None:
     """A usage error (exit 2) naming the first option or argument given on the command line beside --resume."""
-    given = given_on_command_line(ctx, {p.name for p in ctx.command.params} - RESUME_COMPATIBLE)
+    given = given_on_command_line(ctx, {p.name for p in ctx.command.params} - RESUME_COMPATIBLE) + ctx.args
     if given:
         raise typer.BadParameter("cannot be combined with --resume: a resumed run keeps the settings its card "
                                  "records", ctx=ctx, param_hint=f"'{given[0]}'")
+
+
+def parse_hidden(text: str) -> list[int]:
+    try:
+        sizes = [int(s) for s in text.split(",")]  # an empty piece ("64,,64") is a typo, not a layer to skip
+    except ValueError:
+        raise MiktError(f"--hidden '{text}': expected comma-separated integers such as 64,64") from None
+    if not sizes or any(s <= 0 for s in sizes):
+        raise MiktError(f"--hidden '{text}': expected positive layer sizes such as 64,64")
+    return sizes
 
 
 def note_compile(run) -> None:

@@ -12,13 +12,15 @@ from miktcli.cli.console import err, out, print_data, print_error, print_json
 
 app = typer.Typer(
     help="List, show and render environments.\n\nExamples:\n\n  mikt envs\n\n  mikt envs show centipede-six"
-    "\n\n  mikt envs render ant --out ant.png",
+    "\n\n  mikt envs render ant --out ant.png\n\n  mikt envs add my_robot.xml --name my-robot",
     invoke_without_command=True,
     no_args_is_help=False,
 )
 
 
 def _family(spec) -> str:
+    if spec.family == "mjcf":
+        return f"mjcf ({spec.xml})"
     return "centipede" if spec.family == "centipede" else f"gymnasium ({spec.id})"
 
 
@@ -92,3 +94,31 @@ def render(
     save_png(frame, out_path)
     err.print(f"wrote {out_path} ({frame.shape[1]}x{frame.shape[0]})")
     print_data(out_path)
+
+
+@app.command("add")
+def add(
+    xml: Path = typer.Argument(..., help="An MJCF file (a robot with actuators and a free or slide root joint).",
+                               show_default=False),
+    name: str = typer.Option(..., "--name", help="The environment's name, e.g. my-robot."),
+    torso: str = typer.Option(None, "--torso", help="The body that carries the root joint (default: the body of "
+                              "the free joint, else the first body with slide joints)."),
+) -> None:
+    """Add your own robot: write an `mjcf` spec into $MIKT_ENVSPECS (else ./envspecs), with the XML and the
+    files it loads copied beside it. Prints the model's dims, actuators and torso; writes nothing on an error."""
+    from miktcli.workflows.add_env import add_mjcf
+
+    added = add_mjcf(xml, name, torso=torso)
+    spec, facts = added.spec, added.facts
+    err.print(f"{xml}: obs {spec.obs_dim}, act {spec.act_dim}, nq {facts['nq']}, nv {facts['nv']}, "
+              f"timestep {facts['timestep']:g} s x frame_skip {spec.frame_skip}")
+    err.print(f"torso: {added.root}")
+    err.print(f"actuators ({len(facts['actuators'])}): {', '.join(facts['actuators'])}")
+    if added.copied:
+        extra = f" and {len(added.files)} file(s) it loads" if added.files else ""
+        err.print(f"copied the XML{extra} to {added.xml_path.parent}")
+    else:
+        err.print(f"the spec uses {added.xml_path} in place (it loads files outside its folder): keep it there")
+    healthy = "none" if spec.healthy_z_min is None else f"root height > {spec.healthy_z_min}"
+    err.print(f"wrote {added.spec_path} (health check: {healthy}; edit the file to change any term)")
+    print_data(added.spec_path)

@@ -6,12 +6,15 @@ from pathlib import Path
 
 import typer
 
+from miktcli import limits
 from miktcli.cli.common import DEFAULT_REGISTRY, JsonOption, RegistryOption, setup_torch
 from miktcli.cli.console import err, print_data, print_json
 
-HELP = """Evaluate a teacher (NAME or NAME@vN) or a run's student (runN).
+HELP = """Evaluate a teacher (NAME or NAME@vN) or a run's student (runN); with no target, the newest run (last).
 
 Examples:
+
+  mikt eval --render-offscreen
 
   mikt eval hopper --episodes 20
 
@@ -22,15 +25,17 @@ Examples:
 
 
 def eval_command(
-    target: str = typer.Argument(..., help="Teacher NAME or NAME@vN or runN."),
-    episodes: int = typer.Option(10, "--episodes", min=1),
+    target: str = typer.Argument("last", help="Teacher NAME or NAME@vN, runN, or last (the newest run).",
+                                 show_default=True),
+    episodes: int = typer.Option(10, "--episodes", min=1, max=limits.MAX_EPISODES),
     seed: int = typer.Option(0, "--seed", min=0, max=2**32 - 1,
                              help="Seed of the first episode; episode i uses seed + i."),
     deterministic: bool = typer.Option(True, "--deterministic/--stochastic", help="Mean action or sampled."),
     with_teacher: bool = typer.Option(False, "--with-teacher", help="Runs: evaluate the student with its teacher."),
     render_offscreen: bool = typer.Option(False, "--render-offscreen", help="Write an MP4 and a PNG poster."),
     video: Path = typer.Option(None, "--video", help="MP4 path (default: TARGET-eval.mp4); implies rendering."),
-    video_frames: int = typer.Option(300, "--video-frames", min=1, help="Frames to record from episode 1."),
+    video_frames: int = typer.Option(300, "--video-frames", min=1, max=limits.MAX_VIDEO_FRAMES,
+                                     help="Frames to record from episode 1."),
     as_json: JsonOption = False,
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
@@ -39,6 +44,10 @@ def eval_command(
     from miktcli.workflows.evaluate import evaluate_policy, load_policy
 
     setup_torch()
+    if target == "last":  # name the newest run, so its video file and the summary say which run it was
+        from miktcli.registry.runs import open_run
+
+        target = open_run(registry, "last").id
     if seed + episodes - 1 > 2**32 - 1:
         raise typer.BadParameter(f"episode seeds run from {seed} to {seed + episodes - 1}, past 2³²−1",
                                  param_hint="'--seed'")
@@ -51,7 +60,7 @@ def eval_command(
         prepare_output(video.with_suffix(".png"))
     policy, env_name, label, clip_actions = load_policy(registry, target, with_teacher)
     res = evaluate_policy(policy, env_name, episodes, seed, clip_actions, deterministic,
-                          capture_episodes=1 if render else 0)
+                          capture_episodes=1 if render else 0, max_frames=video_frames)
     summary = {"target": target, "policy": label, "env": env_name, "deterministic": deterministic,
                "clip_actions_for_env": clip_actions,
                **res.summary()}

@@ -7,12 +7,15 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
+from miktcli.cli.cards import render_card
 from miktcli.cli.common import DEFAULT_REGISTRY, JsonOption, RegistryOption
 from miktcli.cli.console import err, out, print_json
 
-HELP = """Inspect a run (runN) or a teacher (NAME or NAME@vN).
+HELP = """Inspect a run (runN) or a teacher (NAME or NAME@vN); with no target, the newest run (last).
 
 Examples:
+
+  mikt inspect --curve
 
   mikt inspect run1 --coupling
 
@@ -38,8 +41,10 @@ def _sampled(rows: list[dict], n: int) -> list[dict]:
 
 
 def inspect(
-    target: str = typer.Argument(..., help="runN or a teacher NAME or NAME@vN."),
-    coupling: bool = typer.Option(False, "--coupling", help="Mixing weights p over training."),
+    target: str = typer.Argument("last", help="runN, last (the newest run) or a teacher NAME or NAME@vN.",
+                                 show_default=True),
+    coupling: bool = typer.Option(
+        False, "--coupling", help="Every source's mixing weight (student, each teacher) per layer over training."),
     curve: bool = typer.Option(False, "--curve", help="The learning curve (mean return over training)."),
     plot: Path = typer.Option(None, "--plot", help="Also write the chosen view as a PNG."),
     rows: int = typer.Option(12, "--rows", min=2, help="Table rows to show."),
@@ -47,6 +52,7 @@ def inspect(
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     from miktcli.errors import MiktError
+    from miktcli.methods import METHODS
     from miktcli.outfiles import prepare_output
     from miktcli.plots import png_plot, text_plot
     from miktcli.registry.runs import open_run
@@ -57,10 +63,10 @@ def inspect(
     if plot:
         prepare_output(plot)
     if not _is_run(target):
-        from miktcli.cli.teacher import render_card
         from miktcli.registry.teachers import load_teacher
 
-        card = load_teacher(reg, target).card.model_dump(mode="json")
+        teacher = load_teacher(reg, target)
+        card = {**teacher.card.model_dump(mode="json"), "source": teacher.source, "path": str(teacher.path)}
         print_json(card) if as_json else render_card(card)
         return
     run = open_run(reg, target)
@@ -71,26 +77,37 @@ def inspect(
         print_json({"card": {**run.card.model_dump(mode="json"), "status": run.status}, "metrics": metrics})
         return
     if not (coupling or curve):
-        from miktcli.cli.teacher import render_card
-
         render_card({**run.card.model_dump(mode="json", exclude={"config"}), "status": run.status})
         err.print("Hint: --coupling for the mixing weights, --curve for the learning curve, --json for all.")
         return
     if coupling:
-        keys = [k for k in (metrics[0] if metrics else {}) if k.startswith("p_")]
-        if not keys:
+        from miktcli.mixing import mixing_series
+        from miktcli.plots import png_panels
+
+        names = [t.name for t in run.card.teachers]
+        if len(set(names)) < len(names):  # the same teacher in two versions: tell them apart
+            names = [f"{t.name}@v{t.version}" for t in run.card.teachers]
+        branches = mixing_series(metrics, names)
+        if not branches:
+            method = METHODS.get(run.card.method)
+            mixing = [name for name, m in METHODS.items() if m.mixes_teachers]
             raise MiktError(f"run '{run.id}' has no mixing weights yet: it has no metrics"
-                            if run.card.method == "mikt" and not metrics
-                            else f"run '{run.id}' ({run.card.method}) has no mixing weights: only mikt runs do")
-        table = Table("steps", *keys, "teacher")
-        for r in _sampled(metrics, rows):
-            table.add_row(f"{r['steps']:,}", *("—" if r.get(k) is None else f"{r[k]:.3f}" for k in keys),
-                          "on" if r.get("teacher_active", 1.0) else "dropped")
-        out.print(table)
-        series = {k: [(r["steps"], r[k]) for r in metrics if r.get(k) is not None] for k in keys}
-        out.print(text_plot(series, y_range=(0.0, 1.0)))
+                            if method is not None and method.mixes_teachers and not metrics
+                            else f"run '{run.id}' ({run.card.method}) has no mixing weights: only "
+                                 f"{', '.join(mixing)} runs do")
+        shown = _sampled(metrics, rows)
+        for branch, series in branches.items():
+            by_step = {label: dict(points) for label, points in series.items()}
+            table = Table("steps", *series, "teacher", title=f"{branch}: weight of each source per layer")
+            for r in shown:
+                values = [by_step[label].get(r["steps"]) for label in series]
+                table.add_row(f"{r['steps']:,}", *("—" if v is None else f"{v:.3f}" for v in values),
+                              "on" if r.get("teacher_active", 1.0) else "dropped")
+            out.print(table)
+            out.print(text_plot(series, y_range=(0.0, 1.0)))
         if plot:
-            png_plot(series, plot, f"{run.id}: student mixing weights", "p (student)")
+            png_panels([(series, f"{run.id}: {branch} mixing weights", None) for branch, series in branches.items()],
+                       plot, "weight", columns=2)
             err.print(f"wrote {plot}")
     if curve:
         table = Table("steps", "mean return (last 100 ep.)", "mean length", "steps/s")

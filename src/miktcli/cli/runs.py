@@ -36,7 +36,7 @@ def runs(
     for r in found:
         c = r.card
         summary = _result_summary(c.result)
-        table.add_row(c.run_id, c.kind, c.method, ", ".join(f"{t.name}@v{t.version}" for t in c.teachers) or "—",
+        table.add_row(c.run_id, c.kind, c.method, ", ".join(t.ref for t in c.teachers) or "—",
                       c.env, r.status, f"{c.steps_done:,}/{c.total_steps:,}", summary, str(c.created)[:19])
     for run_id, problem in damaged:
         table.add_row(run_id, "", "", "", "", "damaged", "", str(problem), "")

@@ -97,29 +97,35 @@ def study(
         "lacks (without it: an error, as the registry is usually the wrong one)."),
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
-    from miktcli.cli.transfer import train_transfer_run
-    from miktcli.workflows.grid import load_grid
-    from miktcli.workflows.study import Study
+    from miktcli.studies.grid import load_grid
+    from miktcli.studies.study import Study
 
     setup_torch()
     grid = load_grid(grid_file)
     st = Study(grid, out or Path("benchmarks/results") / grid.name, registry)
     if report_only:
         st.check_envs()  # the other branches check it before any cell is created
-    elif workers is None and address is None:  # embedded: serial, in this process, no Ray
-        total = len(st.distinct_cells())
-        done = 0
-        for key, run, what in st.execute(command_line(),
-                                         lambda r: train_transfer_run(r, registry, grid.eval_episodes),
-                                         retrain_missing):
-            if what in ("done", "finished"):
-                done += 1
-                err.print(f"[{done}/{total}] {key}: {run.id} completed")
-                st.report()  # refreshed after every cell, so an interruption leaves a current report
-            else:
-                err.print(f"{key}: {what} {run.id}")
-    else:
-        _run_on_ray(st, registry, workers, address, grid.eval_episodes, chunk_iterations, retrain_missing)
+        if not st.cells:  # an empty report would pass for a study without results
+            why = f"{st.state_path.name} names no cell" if st.state_path.is_file() else f"no {st.state_path.name}"
+            raise MiktError(f"{st.out_dir} holds no study yet ({why}): nothing to report",
+                            hint=f"is --out right? Start the study with: mikt study {grid_file} --out {st.out_dir}")
+        _report(st)
+        return
+    with st.driving():  # one driver per study folder, from its first prepared cell to its report
+        if workers is None and address is None:  # embedded: serial, in this process, no Ray
+            failed = _run_serially(st, registry, grid.eval_episodes, retrain_missing)
+        else:
+            failed = _run_on_ray(st, registry, workers, address, grid.eval_episodes, chunk_iterations,
+                                 retrain_missing)
+        _report(st)  # also when cells failed: the others are reported, the failed ones named
+    for key, run_id, error in failed:
+        print_error(f"{key}: {run_id} failed: {error}")
+    if failed:
+        raise MiktError(f"{len(failed)} cell(s) failed; the others are reported",
+                        hint="see `mikt inspect RUN` for each failed run; running the study again retries them")
+
+
+def _report(st) -> None:
     report = st.report()
     for problem in report.left_out:
         err.print(f"warning: left out of the report: {problem}")
@@ -127,12 +133,62 @@ def study(
     print_data(report.path)
 
 
-def _run_on_ray(st, registry: Path, workers: int | None, address: str | None, eval_episodes: int,
-                chunk_iterations: int, retrain_missing: bool) -> None:
-    from miktcli.workflows.ray_executor import require_ray, run_cells_on_ray
+def _announce_pins(st) -> None:
+    """The versions this run of the study pinned for references that name none (studies.pins)."""
+    for ref, pin in st.new_pins:
+        if "@v" not in ref:
+            name = ref.split("@")[0]
+            err.print(f"study: `{ref}` pinned to {pin.ref} ({st.pins_path.name}); a later version of {name} "
+                      "does not change this study")
 
-    require_ray()  # before any run folder is created: a clear error naming the extra
+
+def _run_serially(st, registry: Path, eval_episodes: int, retrain_missing: bool) -> list[tuple[str, str, str]]:
+    """Every unfinished cell in this process, one after another; (cell, run id, error) of each that failed."""
+    from miktcli.cli.training import train_with_progress
+    from miktcli.studies.serial import run_serially
+
+    total = len(st.distinct_cells())
+    done, failed, training, announced = 0, [], None, False
+    try:
+        for event in run_serially(st, command_line(), lambda r: train_with_progress(r, registry, eval_episodes),
+                                  retrain_missing):
+            training = None
+            if not announced:  # the first event comes right after the study was prepared
+                _announce_pins(st)
+                announced = True
+            if event.what in ("done", "finished"):
+                done += 1
+                err.print(f"[{done}/{total}] {event.key}: {event.run.id} completed")
+                st.report()  # refreshed after every cell, so an interruption leaves a current report
+            elif event.what == "failed":
+                failed.append((event.key, event.run.id, event.error))
+                err.print(f"{event.key}: {event.run.id} failed: {event.error}; going on with the next cell")
+                st.report()
+            else:
+                training = event.run.id
+                err.print(f"{event.key}: {event.what} {event.run.id}")
+    except KeyboardInterrupt:
+        kept = f"{training} keeps its last complete checkpoint" if training else "every finished cell is kept"
+        raise MiktError(f"interrupted; {kept}", hint="run the same command again to resume the study") from None
+    return failed
+
+
+def _run_on_ray(st, registry: Path, workers: int | None, address: str | None, eval_episodes: int,
+                chunk_iterations: int, retrain_missing: bool) -> list[tuple[str, str, str]]:
+    """The unfinished cells on Ray; (cell, run id, error) of each that failed."""
+    from miktcli.studies.ray_executor import ray_session
+
+    # connected before any run folder is created: a missing extra or a cluster that is not there is one line
+    with ray_session(workers, address):
+        return _train_on_ray(st, registry, workers, address, eval_episodes, chunk_iterations, retrain_missing)
+
+
+def _train_on_ray(st, registry: Path, workers: int | None, address: str | None, eval_episodes: int,
+                  chunk_iterations: int, retrain_missing: bool) -> list[tuple[str, str, str]]:
+    from miktcli.studies.ray_executor import run_cells_on_ray
+
     cells = st.prepare(command_line(), retrain_missing)
+    _announce_pins(st)
     finished_before = sum(run.card.status == "completed" for _, run in cells)  # the progress shows the rest
     failed = []
     live = Live(console=err, refresh_per_second=2, transient=False) if err.is_terminal else None
@@ -156,8 +212,4 @@ def _run_on_ray(st, registry: Path, workers: int | None, address: str | None, ev
     finally:
         if live:
             live.stop()
-    for progress in failed:
-        print_error(f"{progress.key}: {progress.run_id} failed: {progress.error}")
-    if failed:
-        raise MiktError(f"{len(failed)} cell(s) failed; the others are reported",
-                        hint="see `mikt inspect RUN` for each failed run")
+    return [(p.key, p.run_id, p.error or "no error recorded") for p in failed]

@@ -8,6 +8,7 @@ import typer
 from rich.table import Table
 from rich.text import Text
 
+from miktcli.cli.cards import render_card
 from miktcli.cli.common import (
     DEFAULT_REGISTRY,
     CompileOption,
@@ -19,6 +20,7 @@ from miktcli.cli.common import (
     command_line,
     note_compile,
     note_rounding,
+    parse_hidden,
     refuse_options_with_resume,
     setup_torch,
 )
@@ -32,16 +34,6 @@ app = typer.Typer(
     "  mikt teacher show centipede-four@v1\n\n  mikt teacher import ppo_hopper.zip --env hopper --obs-stats stats.json",
     no_args_is_help=True,
 )
-
-
-def parse_hidden(text: str) -> list[int]:
-    try:
-        sizes = [int(s) for s in text.split(",")]  # an empty piece ("64,,64") is a typo, not a layer to skip
-    except ValueError:
-        raise MiktError(f"--hidden '{text}': expected comma-separated integers such as 64,64") from None
-    if not sizes or any(s <= 0 for s in sizes):
-        raise MiktError(f"--hidden '{text}': expected positive layer sizes such as 64,64")
-    return sizes
 
 
 @app.command("train")
@@ -96,6 +88,9 @@ def import_command(
     obs_stats: Path = typer.Option(
         None, "--obs-stats", help='JSON {"mean": [...], "var": [...]}: the observation normaliser it was trained '
         "with (SB3's VecNormalize, CleanRL's NormalizeObservation)."),
+    activation: str = typer.Option(
+        None, "--activation", help="tanh | relu, for files that cannot tell (CleanRL; default tanh, recorded as "
+        "assumed). SB3 zips record theirs."),
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     """Import a PPO policy trained with Stable-Baselines3 or CleanRL as a teacher. Nothing is unpickled."""
@@ -105,28 +100,51 @@ def import_command(
         fmt = "sb3" if path.suffix == ".zip" else "cleanrl" if path.suffix == ".cleanrl_model" else None
         if fmt is None:
             raise MiktError(f"{path}: cannot tell the format from the name", hint="pass --format sb3 or cleanrl")
-    card = import_teacher(registry, path, fmt=fmt, env=env, name=name, obs_stats=obs_stats)
+    card = import_teacher(registry, path, fmt=fmt, env=env, name=name, obs_stats=obs_stats, activation=activation)
     err.print(f"imported {path.name} ({fmt}, {card.activation}, hidden {card.pi_hidden}) as {card.ref}")
+    _warn_if_shadowing(registry, card, fmt)
+    for what in ("activation", "obs_stats"):  # say what was assumed rather than read
+        if str(card.imported_from.get(what, "")).startswith(("assumed", "none given")):
+            err.print(f"{what}: {card.imported_from[what]}")
     print_data(card.ref)
 
 
+def _warn_if_shadowing(registry: Path, card, fmt: str) -> None:
+    """An import under a name that has versions (the default name is the env's, that of the shipped teachers)
+    changes what that name means without a version: grids (`from = ["hopper"]`), transfers and evals."""
+    from miktcli.workflows.teacher import shadowed_teacher
+
+    try:
+        older = shadowed_teacher(registry, card)
+    except MiktError as e:
+        err.print(f"warning: {card.ref} is now what `{card.name}` means; its previous version is unreadable: {e}")
+        return
+    if older is None:
+        return
+    made = (f"imported from {older.imported_from.get('format', '?')}" if older.imported_from
+            else f"trained by mikt, {older.steps:,} steps")
+    err.print(f"warning: {card.ref} (imported from {fmt}) is now what `{card.name}` means, in place of {older.ref} "
+              f"({made}): grids, transfers and evals that name `{card.name}` without a version get this import; "
+              f"name {older.ref} to keep it, or import under another --name (a study started before keeps its "
+              "pinned version)")
+
+
 def _teacher_rows(reg: Path) -> list[dict]:
-    from miktcli.registry.teachers import list_names, read_teacher_card, teachers_dir, versions
+    from miktcli.registry.teachers import read_teacher_card, teacher_files
 
     rows = []
-    for name in list_names(reg):
-        for v in versions(reg, name):
-            path = teachers_dir(reg) / name / f"v{v}.safetensors"
-            stored_as = f"{name}@v{v}"  # where the file lies is what `eval` and `transfer` resolve
-            try:
-                card = read_teacher_card(path)  # the header only: no weights are loaded
-                if card.ref != stored_as:
-                    raise MiktError(f"{path}: the card names {card.ref} but the file is stored as {stored_as} "
-                                    "(moved or tampered)")
-                rows.append({"ref": stored_as, "card": card.model_dump(mode="json"), "path": str(path),
-                             "error": None})
-            except MiktError as e:
-                rows.append({"ref": stored_as, "card": None, "path": str(path), "error": str(e)})
+    for f in teacher_files(reg):
+        stored_as = f.ref  # where the file lies is what `eval` and `transfer` resolve
+        source = "local (over packaged)" if f.shadows_packaged else f.source
+        try:
+            card = read_teacher_card(f.path)  # the header only: no weights are loaded
+            if card.ref != stored_as:
+                raise MiktError(f"{f.path}: the card names {card.ref} but the file is stored as {stored_as} "
+                                "(moved or tampered)")
+            rows.append({"ref": stored_as, "source": source, "card": card.model_dump(mode="json"),
+                         "path": str(f.path), "error": None})
+        except MiktError as e:
+            rows.append({"ref": stored_as, "source": source, "card": None, "path": str(f.path), "error": str(e)})
     return rows
 
 
@@ -135,7 +153,10 @@ def list_teachers(
     as_json: JsonOption = False,
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
-    """List teachers and their versions (reads file headers only)."""
+    """List teachers and their versions (reads file headers only).
+
+    `source` says where each comes from: `local` (the registry folder) or `packaged` (shipped with mikt,
+    read-only; a local file of the same name and version wins). MIKT_PACKAGED_TEACHERS=0 hides the packaged ones."""
     rows = _teacher_rows(registry)
     unreadable = sum(r["error"] is not None for r in rows)
     if as_json:
@@ -150,32 +171,16 @@ def _print_teacher_table(rows: list[dict], registry: Path) -> None:
     if not rows:
         err.print(f"no teachers in {registry}; train one with: mikt teacher train ENV")
         return
-    table = Table("teacher", "env", "obs", "act", "hidden", "steps", "final return", "created")
+    table = Table("teacher", "source", "env", "obs", "act", "hidden", "steps", "final return", "created")
     for r in rows:
         c = r["card"]
         if c is None:
-            table.add_row(r["ref"], Text(f"unreadable: {r['error']}", style="red"), "", "", "", "", "", "")
+            table.add_row(r["ref"], r["source"], Text(f"unreadable: {r['error']}", style="red"),
+                          "", "", "", "", "", "")
             continue
         ret = "—" if c["final_return"] is None else f"{c['final_return']:.1f}"
-        table.add_row(r["ref"], c["env"], str(c["obs_dim"]), str(c["act_dim"]),
+        table.add_row(r["ref"], r["source"], c["env"], str(c["obs_dim"]), str(c["act_dim"]),
                       "x".join(map(str, c["pi_hidden"])), f"{c['steps']:,}", ret, c["created"][:19])
-    out.print(table)
-
-
-def render_card(data: dict) -> None:
-    from miktcli.registry.cards import CodeSegment, describe_code_history
-
-    table = Table(show_header=False, box=None)
-    for key, value in data.items():
-        if key == "code_history":
-            if data.get("imported_from"):  # trained elsewhere: its import record says where
-                continue
-            trained = data.get("steps_done", data.get("steps", 0)) > 0  # run cards / teacher cards
-            value = describe_code_history([CodeSegment.model_validate(s) for s in value], data["code_version"],
-                                          trained=trained)
-        elif isinstance(value, dict):
-            value = ", ".join(f"{k}={v}" for k, v in value.items())
-        table.add_row(key, str(value))
     out.print(table)
 
 
@@ -185,11 +190,12 @@ def show(
     as_json: JsonOption = False,
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
-    """Show a teacher's card after verifying the file (shapes and sha256)."""
+    """Show a teacher's card after verifying the file (shapes and sha256), and where the file comes from
+    (`local` or `packaged`)."""
     from miktcli.registry.teachers import load_teacher
 
     teacher = load_teacher(registry, ref)
-    data = teacher.card.model_dump(mode="json")
+    data = {**teacher.card.model_dump(mode="json"), "source": teacher.source, "path": str(teacher.path)}
     if as_json:
         print_json(data)
     else:

@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import gymnasium as gym
 import mujoco
 
+from miktcli.envs.failures import remember_spec_name
+from miktcli.envs.gl_backend import load_gl_backend
 from miktcli.envs.mujoco_warnings import capture_mujoco_warnings
-from miktcli.envs.spec import CentipedeSpec, GymnasiumSpec, load_spec, scan_specs
-from miktcli.errors import MiktError
+from miktcli.envs.spec import AnySpec, load_spec, scan_specs
+from miktcli.errors import EnvKeywordError, MiktError
 
-Spec = CentipedeSpec | GymnasiumSpec
+Spec = AnySpec
 GYM_NAMESPACE = "mikt"
 
 
@@ -39,7 +42,10 @@ def make_env(spec: Spec | str, render_mode: str | None = None) -> gym.Env:
     if isinstance(spec, str):
         spec = load_spec(spec)
     capture_mujoco_warnings()
+    if render_mode is not None:
+        load_gl_backend()
     env = spec.build(render_mode)
+    remember_spec_name(env, spec.name)
     _check_continuous_mujoco(spec, env)
     obs_dim, act_dim = env_dims(env)
     if (obs_dim, act_dim) != (spec.obs_dim, spec.act_dim):
@@ -76,8 +82,13 @@ def model_facts(env: gym.Env) -> dict[str, Any]:
 _NO_INNER_LIMIT = 2**62
 
 
-def make_registered(name: str, render_mode: str | None = None) -> gym.Env:
-    """The entry point gymnasium calls for `mikt/NAME`; any other keyword is refused by Python itself."""
+def make_registered(name: str, /, render_mode: str | None = None, **other: Any) -> gym.Env:
+    """The entry point gymnasium calls for `mikt/NAME` (bound to NAME at registration, so no keyword of
+    `gym.make` can swap the body: `name="ant"` once returned Ant under the centipede's id)."""
+    if other:
+        raise EnvKeywordError(f"gym.make('{GYM_NAMESPACE}/{name}'): keyword(s) {', '.join(sorted(other))} would change "
+                        "the environment, which its spec fixes; gym.make takes max_episode_steps and render_mode",
+                        hint="for another body or other settings, write a spec file (mikt envs --help)")
     spec = load_spec(name)
     return make_env(spec.model_copy(update={"max_episode_steps": _NO_INNER_LIMIT}), render_mode=render_mode)
 
@@ -90,7 +101,7 @@ def register_with_gymnasium() -> list[str]:
     for spec in scan_specs()[0]:
         env_id = f"{GYM_NAMESPACE}/{spec.name}"
         if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point="miktcli.envs.factory:make_registered", kwargs={"name": spec.name},
+            gym.register(id=env_id, entry_point=functools.partial(make_registered, spec.name),
                          max_episode_steps=spec.max_episode_steps)
         ids.append(env_id)
     return ids

@@ -1,4 +1,7 @@
-"""Environment specs: one TOML file per environment, validated by pydantic."""
+"""Environment specs: one TOML file per environment, validated by pydantic.
+
+Specs are looked up in your folder ($MIKT_ENVSPECS, else ./envspecs) and then in the ones shipped with mikt; a
+spec of yours with a shipped name wins."""
 
 from __future__ import annotations
 
@@ -10,10 +13,21 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import gymnasium as gym
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    TypeAdapter,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
+from miktcli import limits
 from miktcli.envs.centipede import CentipedeEnv
 from miktcli.errors import MiktError, describe_validation_error
+from miktcli.limits import read_file_bounded
 
 SPEC_NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]{0,63}$")
 GYM_ID_RE = re.compile(r"^[A-Za-z0-9_./-]+-v\d+$")
@@ -85,23 +99,79 @@ class GymnasiumSpec(_SpecBase):
                                 f"{type(err).__name__}: {err}") from err
 
 
-EnvSpec = Annotated[CentipedeSpec | GymnasiumSpec, Field(discriminator="family")]
-_spec_adapter: TypeAdapter[CentipedeSpec | GymnasiumSpec] = TypeAdapter(EnvSpec)
+class MjcfSpec(_SpecBase):
+    """A legged body from any MJCF file, with the locomotion task of gymnasium's Hopper, Walker2d and Ant.
+
+    Every term has a default (gymnasium's Hopper-v5 / Walker2d-v5 where those envs agree) and the whole spec,
+    defaults included, is copied into each card. See envs/mjcf.py for how each term is computed."""
+
+    family: Literal["mjcf"]
+    xml: str = Field(description="the MJCF file, relative to the spec file (or absolute)")
+    torso: str | None = Field(None, description="body whose root joint moves the robot (default: the body of the "
+                              "free joint, else of the first slide joints)")
+    forward_axis: tuple[float, float, float] = Field((1.0, 0.0, 0.0), description="world direction of travel")
+    frame_skip: int = Field(4, ge=1, le=1000, description="MuJoCo steps per env step")
+    forward_reward_weight: float = 1.0
+    ctrl_cost_weight: float = Field(1e-3, ge=0, description="times the sum of squared raw actions")
+    contact_cost_weight: float = Field(0.0, ge=0, description="times the sum of squared clipped contact forces")
+    healthy_reward: float = Field(1.0, description="bonus for each step that ends healthy")
+    terminate_when_unhealthy: bool = True
+    healthy_z_min: float | None = Field(None, description="the root's height must stay above (strictly)")
+    healthy_z_max: float | None = Field(None, description="... and below (strictly); none: no bound")
+    healthy_angle_range: tuple[float, float] | None = Field(
+        None, description="open range of the root's hinge angle (planar walkers: its pitch, rad)")
+    healthy_state_range: tuple[float, float] | None = Field(
+        None, description="open range of every qpos and qvel entry but the root's position (Hopper's check)")
+    reset_noise_scale: float = Field(5e-3, ge=0, description="qpos and qvel start at their reference + U(-s, s)")
+    qvel_clip: float | None = Field(10.0, gt=0, description="observed velocities are clipped to ±this; none: "
+                                    "unclipped")
+    contact_forces: bool = Field(False, description="append clipped cfrc_ext of every body but the world")
+    contact_force_range: tuple[float, float] = (-1.0, 1.0)
+    _folder: Path | None = PrivateAttr(default=None)  # the spec file's folder, which `xml` is relative to
+
+    @model_validator(mode="after")
+    def _check_terms(self) -> MjcfSpec:
+        if not any(self.forward_axis):
+            raise ValueError("forward_axis must not be zero")
+        for field in ("healthy_angle_range", "healthy_state_range", "contact_force_range"):
+            pair = getattr(self, field)
+            if pair is not None and not pair[0] < pair[1]:
+                raise ValueError(f"{field} {list(pair)} is empty (low must be below high)")
+        if None not in (self.healthy_z_min, self.healthy_z_max) and not self.healthy_z_min < self.healthy_z_max:
+            raise ValueError(f"healthy_z_min {self.healthy_z_min} must be below healthy_z_max {self.healthy_z_max}")
+        return self
+
+    def located(self, folder: Path) -> MjcfSpec:
+        self._folder = Path(folder)
+        return self
+
+    def xml_path(self) -> Path:
+        path = Path(self.xml).expanduser()
+        if path.is_absolute():
+            return path
+        if self._folder is None:
+            raise MiktError(f"environment '{self.name}': its xml '{self.xml}' is relative, but the spec was not "
+                            "read from a file")
+        return self._folder / path
+
+    def build(self, render_mode: str | None = None) -> gym.Env:
+        from miktcli.envs.mjcf import MjcfEnv
+
+        return MjcfEnv(self, render_mode=render_mode)
 
 
-def parse_spec(data: dict[str, Any]) -> CentipedeSpec | GymnasiumSpec:
+AnySpec = CentipedeSpec | GymnasiumSpec | MjcfSpec
+EnvSpec = Annotated[AnySpec, Field(discriminator="family")]
+_spec_adapter: TypeAdapter[AnySpec] = TypeAdapter(EnvSpec)
+
+
+def parse_spec(data: dict[str, Any]) -> AnySpec:
     """Validate a spec given as a dict (e.g. the copy stored in a teacher card)."""
     return _spec_adapter.validate_python(data)
 
 
-def envspecs_dir() -> Path:
-    """Where spec files live: $MIKT_ENVSPECS, else the checkout's envspecs/, else the copy in the wheel."""
-    override = os.environ.get("MIKT_ENVSPECS")
-    if override:
-        if not Path(override).is_dir():  # else every listing is silently empty
-            raise MiktError(f"MIKT_ENVSPECS={override} is not a folder",
-                            hint="point it at a folder of *.toml specs, or unset it")
-        return Path(override)
+def shipped_specs_dir() -> Path:
+    """The specs that ship with mikt: the checkout's envspecs/, else the copy in the wheel."""
     here = Path(__file__).resolve()
     checkout = here.parents[3] / "envspecs"
     if checkout.is_dir():
@@ -109,9 +179,39 @@ def envspecs_dir() -> Path:
     return here.parents[1] / "_envspecs"
 
 
-def load_spec_file(path: Path) -> CentipedeSpec | GymnasiumSpec:
+def user_specs_dir() -> Path:
+    """Where your own specs live and `mikt envs add` writes: $MIKT_ENVSPECS, else ./envspecs (it need not
+    exist yet)."""
+    override = os.environ.get("MIKT_ENVSPECS")
+    if override:
+        if not Path(override).is_dir():  # else every listing is silently empty
+            raise MiktError(f"MIKT_ENVSPECS={override} is not a folder",
+                            hint="point it at a folder of *.toml specs, or unset it")
+        return Path(override)
+    return Path("envspecs")
+
+
+def spec_dirs() -> list[Path]:
+    """The folders specs are looked up in, first wins: your specs, then the shipped ones (one folder when they
+    are the same, as in a checkout run from its root)."""
+    dirs = [user_specs_dir(), shipped_specs_dir()]
+    if not dirs[0].is_dir() or dirs[0].resolve() == dirs[1].resolve():
+        dirs = dirs[1:]
+    return dirs
+
+
+def envspecs_dir() -> Path:
+    """The first folder specs are looked up in (see `spec_dirs`)."""
+    return spec_dirs()[0]
+
+
+def load_spec_file(path: Path) -> AnySpec:
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        if path.is_dir():  # a folder named x.toml: not a spec, and never a reason to hide the others
+            raise MiktError(f"{path}: a folder, not a spec file")
+        data = tomllib.loads(read_file_bounded(path, str(path), limits.MAX_JSON_BYTES).decode("utf-8"))
+    except OSError as err:  # unreadable (permissions), vanished since the listing
+        raise MiktError(f"{path}: cannot be read: {err.strerror or err}") from err
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise MiktError(f"{path}: not valid TOML: {err}") from err
     try:
@@ -120,26 +220,36 @@ def load_spec_file(path: Path) -> CentipedeSpec | GymnasiumSpec:
         raise MiktError(f"{path}: {describe_validation_error(err)}") from err
     if spec.name != path.stem:
         raise MiktError(f"{path}: field 'name': '{spec.name}' must equal the file name '{path.stem}'")
+    if isinstance(spec, MjcfSpec):
+        spec.located(path.parent)
     return spec
 
 
+def _spec_files(directory: Path | None) -> dict[str, Path]:
+    """name → spec file, the first folder of `spec_dirs` winning (or only `directory` when given)."""
+    files: dict[str, Path] = {}
+    for folder in [directory] if directory is not None else spec_dirs():
+        for path in sorted(folder.glob("*.toml")):
+            files.setdefault(path.stem, path)
+    return dict(sorted(files.items()))
+
+
 def spec_names(directory: Path | None = None) -> list[str]:
-    directory = directory or envspecs_dir()
-    return sorted(p.stem for p in directory.glob("*.toml"))
+    # a folder named x.toml is not a spec: scan_specs names it as such, and it is never offered as a name
+    return [name for name, path in _spec_files(directory).items() if path.is_file()]
 
 
-def load_spec(name: str, directory: Path | None = None) -> CentipedeSpec | GymnasiumSpec:
-    directory = directory or envspecs_dir()
+def load_spec(name: str, directory: Path | None = None) -> AnySpec:
     if not SPEC_NAME_RE.fullmatch(name):
         raise MiktError(f"invalid environment name '{name}': lowercase letters, digits, '.', '_' and '-'")
-    path = directory / f"{name}.toml"
-    if not path.is_file():
-        known = ", ".join(spec_names(directory)) or "(none)"
+    files = _spec_files(directory)
+    if name not in files:
+        known = ", ".join(files) or "(none)"
         raise MiktError(f"unknown environment '{name}'; known: {known}")
-    return load_spec_file(path)
+    return load_spec_file(files[name])
 
 
-def load_all_specs(directory: Path | None = None) -> list[CentipedeSpec | GymnasiumSpec]:
+def load_all_specs(directory: Path | None = None) -> list[AnySpec]:
     """Every valid spec; raises on the first bad one (see `scan_specs` to list good and bad together)."""
     good, bad = scan_specs(directory)
     if bad:
@@ -147,11 +257,10 @@ def load_all_specs(directory: Path | None = None) -> list[CentipedeSpec | Gymnas
     return good
 
 
-def scan_specs(directory: Path | None = None) -> tuple[list[CentipedeSpec | GymnasiumSpec], list[MiktError]]:
+def scan_specs(directory: Path | None = None) -> tuple[list[AnySpec], list[MiktError]]:
     """The valid specs, and one error per file that is not (a bad file never hides the good ones)."""
-    directory = directory or envspecs_dir()
     good, bad = [], []
-    for path in sorted(directory.glob("*.toml")):
+    for path in _spec_files(directory).values():
         try:
             good.append(load_spec_file(path))
         except MiktError as err:

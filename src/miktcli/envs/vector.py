@@ -18,7 +18,9 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from miktcli.envs.failures import env_failure
 from miktcli.envs.lean import LeanStepper, lean_stepper
+from miktcli.errors import MiktError
 
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 # Derived quantities that reward code reads *before* the next mj_step (Ant's and the centipede's "x before").
@@ -64,11 +66,20 @@ class SyncEnvs:
         self.action_high = envs[0].action_space.high.astype(np.float32)
         self._returns = np.zeros(self.num)
         self._lengths = np.zeros(self.num, dtype=np.int64)
-        self._obs = np.stack([env.reset(seed=seed + i)[0] for i, env in enumerate(envs)])
+        self._obs = np.stack([self._reset(env, seed=seed + i) for i, env in enumerate(envs)])
         found = [lean_stepper(env) for env in envs] if lean else []
         self.lean = bool(found) and all(f is not None for f in found)
         self._steppers: list[LeanStepper] = [f[0] for f in found] if self.lean else []  # type: ignore[index]
         self._limits = [_NO_LIMIT if f[1] is None else int(f[1]) for f in found] if self.lean else []  # type: ignore[index]
+
+    @staticmethod
+    def _reset(env: gym.Env, **kwargs: Any) -> np.ndarray:
+        try:
+            return env.reset(**kwargs)[0]
+        except MiktError:
+            raise
+        except Exception as err:  # noqa: BLE001 - an env's own code: name its spec, not a mikt bug
+            raise env_failure(env, err, "reset") from err
 
     @property
     def obs(self) -> np.ndarray:
@@ -86,7 +97,12 @@ class SyncEnvs:
         result = StepResult(self._obs, rewards, terminated, truncated)
         next_obs = np.empty_like(self._obs)
         for i, env in enumerate(self.envs):
-            obs, reward, term, trunc, _ = env.step(actions[i])
+            try:
+                obs, reward, term, trunc, _ = env.step(actions[i])
+            except MiktError:
+                raise
+            except Exception as err:  # noqa: BLE001 - an env's own code: name its spec, not a mikt bug
+                raise env_failure(env, err, "step") from err
             rewards[i] = reward
             self._returns[i] += reward
             self._lengths[i] += 1
@@ -96,7 +112,7 @@ class SyncEnvs:
                     result.final_obs[i] = obs
                 result.finished.append((float(self._returns[i]), int(self._lengths[i])))
                 self._returns[i], self._lengths[i] = 0.0, 0
-                obs, _ = env.reset()
+                obs = self._reset(env)
             next_obs[i] = obs
         self._obs = next_obs
         result.obs = next_obs
@@ -109,18 +125,24 @@ class SyncEnvs:
         next_obs = np.empty_like(self._obs)
         result = StepResult(next_obs, rewards, terminated, truncated)
         returns, lengths = self._returns, self._lengths
-        for i, stepper in enumerate(self._steppers):
-            reward, term = stepper.step(actions[i], next_obs[i])
-            rewards[i] = reward
-            returns[i] += reward
-            lengths[i] += 1
-            if term or lengths[i] >= self._limits[i]:
-                terminated[i], truncated[i] = term, not term
-                if not term:
-                    result.final_obs[i] = next_obs[i].copy()
-                result.finished.append((float(returns[i]), int(lengths[i])))
-                returns[i], lengths[i] = 0.0, 0
-                next_obs[i] = self.envs[i].reset()[0]
+        i = 0
+        try:  # one try around the loop (free until it raises); i names the env that failed
+            for i, stepper in enumerate(self._steppers):
+                reward, term = stepper.step(actions[i], next_obs[i])
+                rewards[i] = reward
+                returns[i] += reward
+                lengths[i] += 1
+                if term or lengths[i] >= self._limits[i]:
+                    terminated[i], truncated[i] = term, not term
+                    if not term:
+                        result.final_obs[i] = next_obs[i].copy()
+                    result.finished.append((float(returns[i]), int(lengths[i])))
+                    returns[i], lengths[i] = 0.0, 0
+                    next_obs[i] = self._reset(self.envs[i])
+        except MiktError:
+            raise
+        except Exception as err:  # noqa: BLE001 - an env's own code: name its spec, not a mikt bug
+            raise env_failure(self.envs[i], err, "step") from err
         self._obs = next_obs
         return result
 

@@ -6,6 +6,8 @@ at every hidden layer of both the policy and the value function (paper Eq. 2):
 
     h^j = tanh(p^j_student · z^j_student + Σ_k p^j_k · z^j_teacher_k),   p^j = softmax(logits^j)
 
+(or, with `mixing = "shared"`, one teacher weight over Σ_k z^j_teacher_k: CAT's two logits per layer).
+
 All losses are returned together so that one backward of their sum gives every parameter group exactly
 Algorithm 1's gradient: θ, ψ ← L_PPO; φ ← L_PPO + L_MI; ω ← L_MI; p ← L_PPO + L_coupling; teachers ← none.
 """
@@ -61,13 +63,28 @@ class MiktConfig(BaseModel):
         description="identity (the paper: no learnable matrix transforms the teacher representation); "
         "projection (the authors' code): each teacher pre-activation times a learnable square matrix U, no "
         "bias, Glorot-uniform init, before mixing")
-
+    mixing: Literal["per-teacher", "shared"] = Field(
+        "per-teacher",
+        description="per-teacher (the authors' MIKT code): one logit per source, p = softmax([student, teacher 1 "
+        "… K]), h = tanh(p_s z_s + Σ_k p_k z_k). shared (CAT's published checkpoints, inferred from their two "
+        "logits per layer): p = softmax([student, teachers]), h = tanh(p_s z_s + p_t Σ_k z_k), one teacher "
+        "share over the sum of the (projected) teacher pre-activations. With one teacher the two are the same")
+    coupling_ramp: Literal["coefficient", "student-weight"] = Field(
+        "coefficient",
+        description="what the three-phase ramp r(t) (0 → 1) paces. coefficient (the authors' code): L_coupling's "
+        "coefficient is c·r(t). student-weight: r(t) is a floor on every layer's student weight, L_coupling = "
+        "c·mean_j max(0, log r(t) − log p^j), so the teacher is pushed out no faster than the ramp. Why: Adam "
+        "normalises each parameter's step, so once L_coupling's gradient outweighs PPO's on a mixing logit, the "
+        "logit moves at Adam's rate whatever c·r(t) is, and p^j reaches ~1 long before the ramp ends")
 
     @model_validator(mode="after")
     def _ramp_has_length(self) -> MiktConfig:
         # the ramp divides by its length: an empty or reversed one has no meaning
         if self.ramp_start >= self.drop_teacher_at:
             raise ValueError(f"ramp_start ({self.ramp_start}) must be below drop_teacher_at ({self.drop_teacher_at})")
+        if self.coupling_ramp != "coefficient" and self.coupling_schedule != "three-phase":
+            raise ValueError(f"coupling_ramp '{self.coupling_ramp}' paces the three-phase ramp; the constant "
+                             "schedule has none")
         return self
 
 
@@ -113,7 +130,7 @@ class MiktActorCritic(ActorCritic):
         self.decoders = nn.ModuleList(
             GaussianDecoder(t.pi.in_features, obs_dim, [64, 64], config.mi_log_std_min) for t in teachers
         )
-        init = [STUDENT_LOGIT_INIT] + [TEACHER_LOGIT_INIT] * len(teachers)
+        init = [STUDENT_LOGIT_INIT] + [TEACHER_LOGIT_INIT] * mixed_sources(len(teachers), config.mixing)
         self.mix_logits_pi = nn.Parameter(torch.tensor([init] * len(pi_hidden)))
         self.mix_logits_vf = nn.Parameter(torch.tensor([init] * len(vf_hidden)))
         if config.lateral == "projection":
@@ -171,10 +188,12 @@ class MiktActorCritic(ActorCritic):
                    lateral: nn.ModuleList | None) -> list[list[torch.Tensor]]:
         """Each teacher's hidden pre-activations on its embedding, projected by U where the option asks."""
         tz = [net.preactivations(self._teacher_input(e)) for net, e in zip(nets, embs, strict=True)]
-        if lateral is None:
-            return tz
-        return [[F.linear(z, u.weight) for z, u in zip(zs, us, strict=True)] for zs, us in zip(tz, lateral,
-                                                                                                 strict=True)]
+        if lateral is not None:
+            tz = [[F.linear(z, u.weight) for z, u in zip(zs, us, strict=True)] for zs, us in zip(tz, lateral,
+                                                                                                    strict=True)]
+        if self.config.mixing == "shared" and len(tz) > 1:  # one source for the mix: Σ_k z_k per layer
+            tz = [[sum(layer) for layer in zip(*tz, strict=True)]]
+        return tz
 
     def _policy(self, obs: torch.Tensor, embs: list[torch.Tensor], weights: torch.Tensor) -> torch.Tensor:
         tz = self._teacher_z([t.pi for t in self.teachers], embs, self.lateral_pi)
@@ -211,7 +230,10 @@ class MiktActorCritic(ActorCritic):
         acc, term = [torch.empty(n, h) for h in width], [torch.empty(n, h) for h in width]
         zeros = [torch.zeros(n, h) for h in width]
         out = torch.empty(n, head_w.shape[1])
-        k_teachers = len(teachers)
+        # mixing = "shared": one source per layer, Σ_k z_k (as _teacher_z sums them), then mixed as one teacher
+        shared = self.config.mixing == "shared" and len(teachers) > 1
+        summed = [torch.empty(n, h) for h in width] if shared else []
+        k_teachers = 1 if shared else len(teachers)
         p_student = weights[:, 0].unbind()
         w_rows = [row.unbind() for row in weights.unbind()]
 
@@ -220,6 +242,9 @@ class MiktActorCritic(ActorCritic):
             if lateral is not None:
                 tz = [[torch.mm(z, u_t, out=buf) for z, u_t, buf in zip(zs, us, bufs, strict=True)]
                       for zs, us, bufs in zip(tz, lateral, proj, strict=True)]
+            if shared:  # sum() starts at 0, as zeros + z_0 does (see below)
+                tz = [[_sum_into(buf, zero, layer) for buf, zero, layer in zip(summed, zeros, zip(*tz, strict=True),
+                                                                              strict=True)]]
             x = obs
             for j, (w_t, b) in enumerate(student):
                 z = torch.addmm(b, x, w_t, out=lin[j])
@@ -259,9 +284,15 @@ class MiktActorCritic(ActorCritic):
         cfg = self.config
         losses = {}
         if self.coupling_on and (cfg.coupling_pi_coef or cfg.coupling_vf_coef):
-            coupling = (cfg.coupling_pi_coef * -torch.log(w_pi[:, 0]).mean()
-                        + cfg.coupling_vf_coef * -torch.log(w_vf[:, 0]).mean())
-            losses["loss_coupling"] = self.coupling_weight * coupling
+            if cfg.coupling_ramp == "student-weight":  # the ramp is a floor on p^j: push only the layers below it
+                floor = torch.log(self.coupling_weight)
+                coupling = (cfg.coupling_pi_coef * (floor - torch.log(w_pi[:, 0])).clamp(min=0).mean()
+                            + cfg.coupling_vf_coef * (floor - torch.log(w_vf[:, 0])).clamp(min=0).mean())
+                losses["loss_coupling"] = coupling
+            else:
+                coupling = (cfg.coupling_pi_coef * -torch.log(w_pi[:, 0]).mean()
+                            + cfg.coupling_vf_coef * -torch.log(w_vf[:, 0]).mean())
+                losses["loss_coupling"] = self.coupling_weight * coupling
         if cfg.mi and cfg.mi_coef:
             mi = sum(dec.neg_log_prob(obs, e).mean() for dec, e in zip(self.decoders, embs, strict=True))
             losses["loss_mi"] = cfg.mi_coef * mi
@@ -276,6 +307,15 @@ class MiktActorCritic(ActorCritic):
         for branch, p in (("pi", p_pi), ("vf", p_vf)):
             for j in range(p.shape[0]):
                 out[f"p_{branch}_{j}"] = float(p[j, 0])
+        if len(self.teachers) > 1:
+            # the teachers' own weights (one teacher's is 1 − p, so single-teacher metrics stay as they were);
+            # key names: miktcli.mixing
+            sources = mixed_sources(len(self.teachers), self.config.mixing)
+            names = ["shared"] if self.config.mixing == "shared" else [f"t{k}" for k in range(sources)]
+            for branch, p in (("pi", p_pi), ("vf", p_vf)):
+                for j in range(p.shape[0]):
+                    for k, name in enumerate(names):
+                        out[f"w_{branch}_{j}_{name}"] = float(p[j, k + 1]) if self.teacher_active else 0.0
         return out
 
     # --- the teacher-free student -------------------------------------------------------------------
@@ -305,8 +345,21 @@ class _RolloutPreactivations:
         return self.z
 
 
-def initial_student_weight(num_teachers: int = 1) -> float:
-    logits = [STUDENT_LOGIT_INIT] + [TEACHER_LOGIT_INIT] * num_teachers
+def _sum_into(out: torch.Tensor, zeros: torch.Tensor, terms: tuple[torch.Tensor, ...]) -> torch.Tensor:
+    """sum(terms) into `out`, bit for bit as Python's sum (which starts at 0)."""
+    torch.add(zeros, terms[0], out=out)
+    for t in terms[1:]:
+        out.add_(t)
+    return out
+
+
+def mixed_sources(num_teachers: int, mixing: str = "per-teacher") -> int:
+    """Teacher logits per layer: one per teacher, or one shared by all."""
+    return 1 if mixing == "shared" else num_teachers
+
+
+def initial_student_weight(num_teachers: int = 1, mixing: str = "per-teacher") -> float:
+    logits = [STUDENT_LOGIT_INIT] + [TEACHER_LOGIT_INIT] * mixed_sources(num_teachers, mixing)
     return math.exp(logits[0]) / sum(math.exp(v) for v in logits)
 
 
@@ -331,4 +384,4 @@ def student(agent: ActorCritic) -> GaussianActorCritic:
 
 METHOD = Method(name="mikt", summary="MIKT (Algorithm 1): lateral mixing, coupling, L_MI", min_teachers=1,
                 max_teachers=None, default_kl_coef=0.05, options=MiktConfig, build=build, student=student,
-                with_teachers=with_teachers)
+                with_teachers=with_teachers, encoder_per_teacher=True)

@@ -7,17 +7,30 @@ import functools
 import importlib.metadata
 import subprocess
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from miktcli import compat
 from miktcli.ppo import PPOConfig
 
 # A card is written with the newest version this code knows; a reader refuses a newer one with a message
 # instead of a validation error about a field it has never heard of. Every version reads every older one.
-# Teacher: 2 adds `code_history`. Run: 2 adds the status `created` and `code_history`.
-TEACHER_SCHEMA_VERSION = 2
-RUN_SCHEMA_VERSION = 2
+# Teacher: 2 adds `code_history`, 3 `obs_clip`. Run: 2 adds the status `created` and `code_history`, 3
+# `config.eval_episodes`.
+TEACHER_SCHEMA_VERSION = 3
+RUN_SCHEMA_VERSION = 3
+
+
+class TeacherVersion(NamedTuple):
+    """One version of a teacher, written `name@vN` wherever mikt names it (what `eval`, `transfer` and the
+    registry resolve)."""
+
+    name: str
+    version: int
+
+    def __str__(self) -> str:
+        return f"{self.name}@v{self.version}"
 
 
 def now() -> dt.datetime:
@@ -25,6 +38,14 @@ def now() -> dt.datetime:
 
 
 def package_versions() -> dict[str, str]:
+    """The versions of the packages this process runs (a copy: callers keep it in cards)."""
+    return dict(_package_versions())
+
+
+@functools.cache
+def _package_versions() -> dict[str, str]:
+    # Read once per process, as code_version: the packages a process runs are those it imported at the start,
+    # and reading their metadata (~10 ms each time) was most of the cost of preparing a large study's cells.
     versions = {}
     for pkg in ("mikt", "torch", "gymnasium", "mujoco", "numpy", "safetensors"):
         try:
@@ -94,9 +115,11 @@ class TeacherCard(BaseModel):
     pi_hidden: list[int]
     vf_hidden: list[int]
     activation: Literal["tanh", "relu"] = "tanh"  # hidden layers; mikt trains tanh, imported teachers may be relu
-    # How actions reached the env in training, and so how to evaluate the policy. Cards written by mikt 0.1
-    # lack the field: those policies were trained with clipped actions.
-    clip_actions_for_env: bool = True
+    # The normaliser's clip of normalised observations; None: not clipped (a teacher imported without
+    # statistics saw raw observations). Cards before this field were all clipped at ±10.
+    obs_clip: float | None = Field(10.0, gt=0)
+    # How actions reached the env in training, and so how to evaluate the policy.
+    clip_actions_for_env: bool
     steps: int
     seed: int | None  # None: unknown (an imported teacher)
     final_return: float | None
@@ -111,12 +134,19 @@ class TeacherCard(BaseModel):
     created: dt.datetime
     tensors_sha256: str
 
+    @model_validator(mode="before")
+    @classmethod
+    def _older(cls, data: Any) -> Any:
+        return compat.teacher_card(data)
+
     @property
     def ref(self) -> str:
-        return f"{self.name}@v{self.version}"
+        return str(TeacherVersion(self.name, self.version))
 
 
 class TeacherRef(BaseModel):
+    """A run card's record of one of its teachers: which version, and the tensors it had."""
+
     model_config = ConfigDict(extra="forbid")
 
     name: str
@@ -124,6 +154,10 @@ class TeacherRef(BaseModel):
     sha256: str
     obs_dim: int
     env: str
+
+    @property
+    def ref(self) -> str:
+        return str(TeacherVersion(self.name, self.version))
 
 
 class RunConfig(BaseModel):
@@ -134,8 +168,10 @@ class RunConfig(BaseModel):
     ppo: PPOConfig
     pi_hidden: list[int]
     vf_hidden: list[int]
-    options: dict[str, Any] | None = Field(None, description="the method's options (MIKT's), validated by it")
+    options: dict[str, Any] | None = Field(None, description="the method's options, validated by its options model")
     teacher_name: str | None = Field(None, description="teacher runs: the name the teacher is published as")
+    eval_episodes: int | None = Field(None, ge=1, description="transfer runs: episodes of the final evaluation "
+                                      "(None on cards before schema 3: the resuming command's decides)")
 
     @field_validator("ppo", mode="before")
     @classmethod
@@ -144,14 +180,8 @@ class RunConfig(BaseModel):
 
     @model_validator(mode="before")
     @classmethod
-    def _from_0_1(cls, data: Any) -> Any:
-        """run.json of mikt 0.1: MIKT's options under `mikt`, and keys that nothing reads (a teacher's
-        state dim lives in its card and tensors, checked when it is loaded)."""
-        if isinstance(data, dict) and ("mikt" in data or "encoder_widths" in data or "target_obs_dim" in data):
-            data = {k: v for k, v in data.items() if k not in ("encoder_widths", "target_obs_dim", "target_act_dim")}
-            if "mikt" in data:
-                data["options"] = data.pop("mikt")
-        return data
+    def _older(cls, data: Any) -> Any:
+        return compat.run_config(data)
 
 
 # `created`: the folder exists and nothing has trained yet (a study's prepared cell); training sets `running`.

@@ -22,7 +22,9 @@ from pydantic import BaseModel, ValidationError
 from safetensors import SafetensorError, safe_open
 from safetensors.torch import load, save
 
+from miktcli import limits
 from miktcli.errors import MiktError, describe_validation_error
+from miktcli.limits import read_file_bounded
 
 
 @contextlib.contextmanager
@@ -134,7 +136,7 @@ def read_card(path: Path, card_type: type[CardT], schema_version: int) -> CardT:
 
 def read_tensors(path: Path) -> dict[str, torch.Tensor]:
     try:
-        return load(Path(path).read_bytes())
+        return load(read_file_bounded(path, str(path), limits.MAX_TENSOR_FILE_BYTES))
     except (SafetensorError, OSError, ValueError) as err:
         raise MiktError(f"{path}: not a readable safetensors file (truncated or corrupted): {err}") from err
 

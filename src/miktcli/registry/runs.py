@@ -6,10 +6,8 @@ optimiser moments, normaliser and reward statistics, RNG states), so an interrup
 
 from __future__ import annotations
 
-import fcntl
 import json
 import math
-import os
 import re
 from pathlib import Path
 from typing import Any
@@ -29,11 +27,12 @@ from miktcli.registry.files import (
     write_bytes_atomic,
     write_text_atomic,
 )
+from miktcli.registry.locks import FileLock, lock_holder
 from miktcli.registry.tensorboard import EVENTS_FILE, append_event, event_records
 
 RUN_RE = re.compile(r"^run(\d+)$")
 RUN_TARGET_RE = re.compile(r"^(run\d+|last)$")  # what eval and inspect accept as a run
-CHECKPOINT_SCHEMA_VERSION = 2  # 2: the run card it carries may be a version-2 run card
+CHECKPOINT_SCHEMA_VERSION = 3  # 2, 3: the run card it carries may be a version-2 or version-3 run card
 
 
 class CheckpointCard(BaseModel):
@@ -75,52 +74,28 @@ def _json_safe(value: Any) -> Any:
 
 
 class RunLock:
-    """An exclusive OS lock on runN/lock, held while a process trains the run.
+    """An exclusive OS lock on runN/lock, held while a process trains the run (registry.locks).
 
-    The kernel drops a flock when its process dies (SIGKILL included), so a run whose card says `running`
-    but whose lock is free has lost its trainer: `stale`. The file holds the owner's pid for messages."""
+    A run whose card says `running` but whose lock is free has lost its trainer: `stale`."""
 
     def __init__(self, run: Run):
         self.run, self.path = run, run.path / "lock"
-        self.fd: int | None = None
+        self.lock = FileLock(self.path)
 
     def acquire(self) -> RunLock:
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
+        if not self.lock.try_acquire():
             owner = lock_owner(self.run)
             raise MiktError(f"{self.run.id} is being trained by pid {owner if owner else '?'}",
-                            hint="wait for it, or stop that process (Ctrl-C or SIGTERM) and resume") from None
-        os.ftruncate(fd, 0)
-        os.write(fd, str(os.getpid()).encode())
-        self.fd = fd
+                            hint="wait for it, or stop that process (Ctrl-C or SIGTERM) and resume")
         return self
 
     def release(self) -> None:
-        if self.fd is not None:
-            os.close(self.fd)  # closing drops the flock
-            self.fd = None
+        self.lock.release()
 
 
 def lock_owner(run: Run) -> int | None:
     """The pid training `run` now, or None when no live process holds its lock."""
-    path = run.path / "lock"
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except FileNotFoundError:
-        return None
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-        except BlockingIOError:
-            text = os.pread(fd, 32, 0).decode(errors="replace").strip()
-            return int(text) if text.isdigit() else -1
-        fcntl.flock(fd, fcntl.LOCK_UN)
-        return None
-    finally:
-        os.close(fd)
+    return lock_holder(run.path / "lock")
 
 
 class Run:
@@ -215,19 +190,28 @@ class Run:
         return card, tensors
 
 
+_last_created: dict[Path, int] = {}  # runs folder → the number of the run this process created last there
+
+
 def create_run(registry: Path, **fields: Any) -> Run:
     """Allocate the next runN atomically (mkdir fails if another process took it)."""
     root = runs_dir(registry)
     root.mkdir(parents=True, exist_ok=True)
-    while True:
+    # The folder this process created last, while it is still there: listing the registry for every new run
+    # made preparing a study's N cells quadratic in N. Another process's newer runs only cost a retry each.
+    number = _last_created.get(root.resolve())
+    if number is None or not (root / f"run{number}").is_dir():
         ids = run_ids(registry)
-        number = int(ids[-1][3:]) + 1 if ids else 1
+        number = int(ids[-1][3:]) if ids else 0
+    while True:
+        number += 1
         path = root / f"run{number}"
         try:
             path.mkdir()
             break
         except FileExistsError:
             continue
+    _last_created[root.resolve()] = number
     stamp = now()
     card = RunCard(run_id=path.name, status="created", created=stamp, updated=stamp, **fields)
     run = Run(path, card)

@@ -1,11 +1,15 @@
 """The teacher registry: registry/teachers/NAME/vN.safetensors, immutable versions, `latest` alias.
 
+Lookups see two layers: the local registry, and below it the teachers packaged with mikt (read-only, see
+registry/packaged.py). A local file of the same name and version wins; a new version is numbered above both.
+
 `latest` is the highest version present, derived from the files themselves: there is no index that a
 crash could leave half-updated.
 """
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,8 +18,9 @@ import torch
 
 from miktcli.errors import MiktError
 from miktcli.policies import GaussianActorCritic
-from miktcli.registry.cards import TEACHER_SCHEMA_VERSION, TeacherCard
+from miktcli.registry.cards import TEACHER_SCHEMA_VERSION, TeacherCard, TeacherVersion
 from miktcli.registry.files import read_card, read_tensors, save_with_card, tensors_sha256, verify_sha
+from miktcli.registry.packaged import packaged_teachers
 from miktcli.registry.runs import Run, check_registry
 
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
@@ -44,13 +49,22 @@ def check_name(name: str) -> str:
     return name
 
 
-def list_names(registry: Path) -> list[str]:
-    check_registry(registry)
-    root = teachers_dir(registry)
-    return sorted(p.name for p in root.iterdir() if p.is_dir() and versions(registry, p.name)) if root.is_dir() else []
+@dataclass(frozen=True)
+class TeacherFile:
+    """One teacher version as lookups see it: the local registry's file, or the packaged one below it."""
+
+    name: str
+    version: int
+    path: Path
+    source: str  # "local" or "packaged"
+    shadows_packaged: bool = False  # a local file that hides a packaged one of the same name and version
+
+    @property
+    def ref(self) -> str:
+        return f"{self.name}@v{self.version}"
 
 
-def versions(registry: Path, name: str) -> list[int]:
+def _local_versions(registry: Path, name: str) -> list[int]:
     folder = teachers_dir(registry) / name
     if not folder.is_dir():
         return []
@@ -58,23 +72,60 @@ def versions(registry: Path, name: str) -> list[int]:
     return sorted(int(m.group(1)) for m in found if m)
 
 
-def resolve(registry: Path, ref: str) -> Path:
-    """`name`, `name@latest` or `name@vN` → the file; unknown names and versions list what exists."""
+def teacher_files(registry: Path, name: str | None = None) -> list[TeacherFile]:
+    """Every teacher version of both layers (or of one name), by name then version. A local file of the same
+    name and version wins over the packaged one."""
+    check_registry(registry)
+    root = teachers_dir(registry)
+    packaged = packaged_teachers()
+    if name is not None:
+        local_names = [name] if (root / name).is_dir() else []
+        packaged = {name: packaged[name]} if name in packaged else {}
+    else:
+        local_names = [p.name for p in root.iterdir() if p.is_dir()] if root.is_dir() else []
+    files: dict[tuple[str, int], TeacherFile] = {}
+    for n, (v, path) in packaged.items():
+        files[(n, v)] = TeacherFile(n, v, path, "packaged")
+    for n in local_names:
+        for v in _local_versions(registry, n):
+            path = root / n / f"v{v}.safetensors"
+            below = files.get((n, v))  # in a source checkout run from its root, both layers are the same file
+            files[(n, v)] = TeacherFile(n, v, path, "local",
+                                        shadows_packaged=below is not None and below.path != path.resolve())
+    return [files[k] for k in sorted(files)]
+
+
+def list_names(registry: Path) -> list[str]:
+    return sorted({f.name for f in teacher_files(registry)})
+
+
+def versions(registry: Path, name: str) -> list[int]:
+    """The versions of `name` in both layers: a new version is numbered above all of them."""
+    return [f.version for f in teacher_files(registry, name)]
+
+
+def find(registry: Path, ref: str) -> TeacherFile:
+    """`name`, `name@latest` or `name@vN` → the file that wins; unknown names and versions list what exists."""
     m = REF_RE.fullmatch(ref)
     if not m:
         raise MiktError(f"invalid teacher reference '{ref}': expected NAME or NAME@vN")
     name, version = m.group("name"), m.group("version")
     check_name(name)  # a reference is never a path: '../x' or '/abs' are refused here
-    known = versions(registry, name)
+    known = teacher_files(registry, name)
     if not known:
         names = ", ".join(list_names(registry)) or "(none)"
         raise MiktError(f"unknown teacher '{name}' in {registry}; known: {names}",
                         hint=f"train one with: mikt teacher train ENV --name {name}")
-    number = known[-1] if version in (None, "latest") else int(version[1:])
-    if number not in known:
-        raise MiktError(f"teacher '{name}' has no version v{number}; versions: "
-                        + ", ".join(f"v{v}" for v in known))
-    return teachers_dir(registry) / name / f"v{number}.safetensors"
+    number = known[-1].version if version in (None, "latest") else int(version[1:])
+    for f in known:
+        if f.version == number:
+            return f
+    raise MiktError(f"teacher '{name}' has no version v{number}; versions: "
+                    + ", ".join(f"v{f.version}" for f in known))
+
+
+def resolve(registry: Path, ref: str) -> Path:
+    return find(registry, ref).path
 
 
 def check_card_against_tensors(path: Path, card: TeacherCard, tensors: dict[str, torch.Tensor]) -> None:
@@ -120,6 +171,7 @@ class Teacher:
     card: TeacherCard
     path: Path
     policy: GaussianActorCritic
+    source: str = "local"  # or "packaged": where the lookup found it
 
 
 def load_policy_file(path: Path) -> tuple[TeacherCard, GaussianActorCritic]:
@@ -131,24 +183,28 @@ def load_policy_file(path: Path) -> tuple[TeacherCard, GaussianActorCritic]:
     policy = GaussianActorCritic(card.obs_dim, card.act_dim, card.pi_hidden, card.vf_hidden, card.activation)
     policy.load_state_dict(tensors)
     policy.obs_normalizer.frozen = True
+    policy.obs_normalizer.clip = math.inf if card.obs_clip is None else card.obs_clip
     return card, policy
 
 
 def load_teacher(registry: Path, ref: str) -> Teacher:
     """Load a verified teacher, frozen: normaliser statistics fixed, no gradients for its parameters."""
-    path = resolve(registry, ref)
+    found = find(registry, ref)
+    path = found.path
     card, policy = load_policy_file(path)
-    stored_as = (path.parent.name, int(path.stem[1:]))
+    stored_as = TeacherVersion(path.parent.name, int(path.stem[1:]))
     if (card.name, card.version) != stored_as:
-        raise MiktError(f"{path}: the card names {card.ref} but the file is stored as "
-                        f"{stored_as[0]}@v{stored_as[1]} (moved or tampered)")
+        raise MiktError(f"{path}: the card names {card.ref} but the file is stored as {stored_as} "
+                        "(moved or tampered)")
     policy.requires_grad_(False)
     policy.eval()
-    return Teacher(card, path, policy)
+    return Teacher(card, path, policy, found.source)
 
 
 def publish_teacher(registry: Path, card: TeacherCard, policy: GaussianActorCritic) -> TeacherCard:
-    """Write the next version of `card.name`. The file appears whole or not at all, and is never replaced."""
+    """Write the next version of `card.name` into the local registry, numbered above the versions of both
+    layers (so `hopper` trained beside the packaged hopper@v2 becomes hopper@v3, and `latest` means the newest
+    either way). The file appears whole or not at all, and is never replaced."""
     check_name(card.name)
     tensors = {k: v.detach().clone().contiguous() for k, v in policy.state_dict().items()}
     for _ in range(100):  # another process may take the same number first: try the next one
@@ -168,7 +224,7 @@ def load_run_teachers(run: Run, registry: Path) -> list[Teacher]:
     """The exact teacher versions a run was started with; a changed file is refused."""
     teachers = []
     for ref in run.card.teachers:
-        t = load_teacher(registry, f"{ref.name}@v{ref.version}")
+        t = load_teacher(registry, ref.ref)
         if t.card.tensors_sha256 != ref.sha256:
             raise MiktError(f"run '{run.id}': teacher '{t.card.ref}' is not the one the run started with "
                             f"(sha256 {t.card.tensors_sha256[:12]}… vs {ref.sha256[:12]}…)")

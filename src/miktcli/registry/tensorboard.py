@@ -83,7 +83,7 @@ def tag_for(key: str) -> str:
     """TensorBoard groups tags by their prefix: returns, losses, PPO's diagnostics, MIKT's mixing, time."""
     if key.startswith("loss_"):
         return f"loss/{key[5:]}"
-    if key.startswith("p_"):
+    if key.startswith(("p_", "w_")):  # the student's weights and, with several teachers, the teachers'
         return f"mixing/{key}"
     if key in ("coupling_scale", "teacher_active"):
         return f"mikt/{key}"
@@ -94,9 +94,29 @@ def tag_for(key: str) -> str:
     return f"ppo/{key}"
 
 
+_FLOAT32_MAX = 3.4028234663852886e38
+
+
+def _float32(value: object) -> float | None:
+    """The value as TensorBoard's float32 `simple_value`, or None where it has none: not a number, NaN, ±inf, or
+    finite beyond float32 (a reward of −8.7e300), which struct would refuse. metrics.jsonl keeps those exactly."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:  # an int past float64
+        return None
+    return number if math.isfinite(number) and abs(number) <= _FLOAT32_MAX else None
+
+
 def scalars_of(metrics: dict) -> dict[str, float]:
-    return {tag_for(k): float(v) for k, v in metrics.items()
-            if k not in _SKIP and isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)}
+    """The scalars of a metrics row TensorBoard can show; the view leaves out what it cannot (never fails)."""
+    out = {}
+    for key, value in metrics.items():
+        number = None if key in _SKIP else _float32(value)
+        if number is not None:
+            out[tag_for(key)] = number
+    return out
 
 
 def event_records(rows: list[dict], wall_time: float | None = None) -> bytes:

@@ -8,9 +8,11 @@ from typing import NamedTuple
 
 import torch
 
+from miktcli import limits
 from miktcli.envs import make_env
 from miktcli.errors import MiktError
 from miktcli.evaluation import EvalResult, run_episodes
+from miktcli.limits import check_count
 from miktcli.methods import get_method
 from miktcli.policies import ActorCritic
 from miktcli.registry.runs import RUN_TARGET_RE, open_run
@@ -60,15 +62,19 @@ def load_policy(registry: Path, target: str, with_teacher: bool = False) -> Load
 
 
 def evaluate_policy(policy: ActorCritic, env_name: str, episodes: int, seed: int, clip_actions: bool,
-                    deterministic: bool = True, capture_episodes: int = 0) -> EvalResult:
-    """Run the policy (normaliser frozen) on fresh episodes; frames from the first `capture_episodes`."""
+                    deterministic: bool = True, capture_episodes: int = 0,
+                    max_frames: int = limits.MAX_VIDEO_FRAMES) -> EvalResult:
+    """Run the policy (normaliser frozen) on fresh episodes; frames from the first `capture_episodes`, at
+    most `max_frames` of them (they are held in memory)."""
+    check_count("episodes", episodes, limits.MAX_EPISODES)
+    check_count("video frames", max_frames, limits.MAX_VIDEO_FRAMES)
     env = make_env(env_name, render_mode="rgb_array" if capture_episodes else None)
     policy.obs_normalizer.frozen = True
     torch.manual_seed(seed)
     try:
         with torch.no_grad():
             return run_episodes(lambda o: policy.act(o, deterministic), env, episodes, seed,
-                                capture_episodes=capture_episodes, clip_actions=clip_actions)
+                                capture_episodes=capture_episodes, clip_actions=clip_actions, max_frames=max_frames)
     finally:
         env.close()
 

@@ -12,8 +12,10 @@ from typing import Any, TypeVar
 
 import torch
 
+from miktcli import limits
 from miktcli.envs import load_spec, make_env
 from miktcli.errors import MiktError
+from miktcli.limits import check_count
 from miktcli.methods import get_method
 from miktcli.policies import ActorCritic
 from miktcli.ppo import PPOTrainer, state_misfit
@@ -46,9 +48,10 @@ def check_registry_writable(registry: Path, *folders: str) -> None:
 def new_run(registry: Path, *, kind: str, env: str, method: str, seed: int, total_steps: int,
             config: RunConfig, command: str, teachers: list[TeacherRef] | None = None) -> Run:
     """Validate everything a run needs, then create its folder. Nothing is created when a check fails."""
-    if total_steps < 1:
-        raise MiktError(f"--steps {total_steps}: must be at least 1")
-    total_steps = whole_rollouts(total_steps, config.ppo.batch_size)
+    check_count("--steps", total_steps, limits.MAX_STEPS)
+    check_count("--num-envs", config.ppo.num_envs, limits.MAX_NUM_ENVS)
+    asked, total_steps = total_steps, whole_rollouts(total_steps, config.ppo.batch_size)
+    limits.check_rounding(asked, total_steps, config.ppo.batch_size)
     if not 0 <= seed <= MAX_SEED:
         raise MiktError(f"--seed {seed} is out of range: 0 to {MAX_SEED}")
     get_method(method).parse_options(config.options)

@@ -10,11 +10,12 @@ from pathlib import Path
 from miktcli.compile_choice import decide_compile
 from miktcli.envs import load_spec
 from miktcli.errors import MiktError
+from miktcli.nets import OBS_CLIP
 from miktcli.ppo import PPOConfig
 from miktcli.registry.cards import RunConfig, TeacherCard, code_version, now, package_versions
 from miktcli.registry.importers import read_foreign_policy
 from miktcli.registry.runs import Run
-from miktcli.registry.teachers import check_name, publish_teacher
+from miktcli.registry.teachers import check_name, publish_teacher, read_teacher_card, teachers_dir, versions
 from miktcli.workflows.session import Event, Job, Phase, check_registry_writable, new_run
 
 
@@ -59,12 +60,12 @@ def publish_teacher_from_job(job: Job) -> TeacherCard:
 
 
 def import_teacher(registry: Path, path: Path, *, fmt: str, env: str, name: str | None = None,
-                   obs_stats: Path | None = None) -> TeacherCard:
+                   obs_stats: Path | None = None, activation: str | None = None) -> TeacherCard:
     """Publish a policy trained elsewhere (Stable-Baselines3 zip, CleanRL model) as the next version of a
     teacher, after checking its dims and layers against the env spec; nothing is unpickled."""
     spec = load_spec(env)
     teacher_name = check_name(env if name is None else name)
-    imported = read_foreign_policy(path, fmt, obs_stats)
+    imported = read_foreign_policy(path, fmt, obs_stats, activation)
     policy = imported.policy
     obs_dim, act_dim = policy.obs_normalizer.mean.shape[0], policy.log_std.shape[0]
     if (obs_dim, act_dim) != (spec.obs_dim, spec.act_dim):
@@ -74,6 +75,7 @@ def import_teacher(registry: Path, path: Path, *, fmt: str, env: str, name: str 
     card = TeacherCard(
         name=teacher_name, version=1, env=env, env_spec=spec.model_dump(), obs_dim=obs_dim, act_dim=act_dim,
         pi_hidden=policy.pi.hidden_sizes, vf_hidden=policy.vf.hidden_sizes, activation=imported.activation,
+        obs_clip=None if obs_stats is None else OBS_CLIP,  # without statistics it saw raw, unclipped observations
         clip_actions_for_env=True,  # SB3 and CleanRL's ppo_continuous_action clip actions for the env
         steps=0, seed=None, final_return=None, best_return=None, hyperparameters={},
         packages=package_versions(), code_version=code_version(), imported_from=imported.source,
@@ -81,3 +83,12 @@ def import_teacher(registry: Path, path: Path, *, fmt: str, env: str, name: str 
     )
     policy.obs_normalizer.frozen = True
     return publish_teacher(registry, card, policy)
+
+
+def shadowed_teacher(registry: Path, card: TeacherCard) -> TeacherCard | None:
+    """The version that `card` replaced as its name's latest, which references without a version (`hopper`,
+    as grids write them) meant until now; None when the name was new."""
+    older = [v for v in versions(registry, card.name) if v < card.version]
+    if not older:
+        return None
+    return read_teacher_card(teachers_dir(registry) / card.name / f"v{older[-1]}.safetensors")

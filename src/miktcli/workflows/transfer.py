@@ -10,9 +10,11 @@ from typing import Any
 import torch
 from pydantic import ValidationError
 
+from miktcli import limits
 from miktcli.compile_choice import decide_compile
 from miktcli.envs import load_spec
-from miktcli.errors import MiktError, describe_validation_error
+from miktcli.errors import MiktError, TeacherMismatchError, describe_validation_error
+from miktcli.limits import check_count
 from miktcli.methods import get_method
 from miktcli.policies import GaussianActorCritic
 from miktcli.ppo import PPOConfig
@@ -35,19 +37,21 @@ def check_teachers(
     Returns the student's hidden sizes (policy, value): those of the teachers, which must agree."""
     if encoder_widths:
         if len(encoder_widths) != len(teachers):
-            raise MiktError(f"{len(encoder_widths)} encoder width(s) given for {len(teachers)} teacher(s)")
+            raise TeacherMismatchError(f"{len(encoder_widths)} encoder width(s) given for {len(teachers)} teacher(s)",
+                                       stated="encoder_widths")
         for t, width in zip(teachers, encoder_widths, strict=True):
             if width != t.card.obs_dim:
-                raise MiktError(f"teacher '{t.card.ref}': state dim {t.card.obs_dim} (from its card), "
-                                f"encoder width {width} requested")
+                raise TeacherMismatchError(f"teacher '{t.card.ref}': state dim {t.card.obs_dim} (from its card), "
+                                           f"encoder width {width} requested", stated="encoder_widths")
     first = teachers[0].card
     for t in teachers[1:]:
         if (t.card.pi_hidden, t.card.vf_hidden) != (first.pi_hidden, first.vf_hidden):
-            raise MiktError(f"teacher '{t.card.ref}': hidden sizes {t.card.pi_hidden}/{t.card.vf_hidden} differ "
-                            f"from teacher '{first.ref}' ({first.pi_hidden}/{first.vf_hidden})")
+            raise TeacherMismatchError(f"teacher '{t.card.ref}': hidden sizes {t.card.pi_hidden}/{t.card.vf_hidden} "
+                                       f"differ from teacher '{first.ref}' ({first.pi_hidden}/{first.vf_hidden})",
+                                       stated=None)
     if hidden is not None and (hidden != first.pi_hidden or hidden != first.vf_hidden):
-        raise MiktError(f"teacher '{first.ref}': hidden sizes {first.pi_hidden} (policy) / {first.vf_hidden} "
-                        f"(value) from its card, {hidden} requested")
+        raise TeacherMismatchError(f"teacher '{first.ref}': hidden sizes {first.pi_hidden} (policy) / "
+                                   f"{first.vf_hidden} (value) from its card, {hidden} requested", stated="hidden")
     return first.pi_hidden, first.vf_hidden
 
 
@@ -60,22 +64,26 @@ def start_transfer(
     registry: Path, *, to: str, method: str, teacher_refs: list[str], steps: int, seed: int, command: str,
     kl_coef: float | None = None, num_envs: int = 1, options: dict[str, Any] | None = None,
     encoder_widths: list[int] | None = None, hidden: list[int] | None = None, compile_loss: bool | None = None,
+    eval_episodes: int = 10,
 ) -> Run:
     """Check everything a transfer needs, then create its run folder (not yet trained).
     compile_loss: True/False as asked, None to decide from the run's size (compile_choice.py)."""
+    check_count("--eval-episodes", eval_episodes, limits.MAX_EPISODES)
     m = get_method(method)
     m.check_teacher_count(len(teacher_refs))
-    try:
-        parsed = m.parse_options(options)
-    except ValidationError as err:
-        raise MiktError(f"bad {method} option: {describe_validation_error(err)}") from err
+    parsed = m.parse_options(options)
     load_spec(to)
     teachers = [load_teacher(registry, ref) for ref in teacher_refs]
-    refs = [t.card.ref for t in teachers]
-    twice = sorted({ref for ref in refs if refs.count(ref) > 1})
-    if twice:  # the same representation offered twice only splits the student's attention
-        raise MiktError(f"teacher {twice[0]} is given more than once")
-    sizes = (check_teachers(teachers, encoder_widths if m.name == "mikt" else None, hidden) if teachers
+    by_content: dict[str, str] = {}  # tensors' sha256 (verified on load) → the ref that brought them
+    for t in teachers:  # the same representation offered twice only splits the student's attention
+        sha, ref = t.card.tensors_sha256, t.card.ref
+        if sha in by_content:  # by content: one policy imported or copied under two names or versions too
+            first = by_content[sha]
+            raise MiktError(f"teacher {ref} is given more than once" if first == ref else
+                            f"teachers {first} and {ref} hold the same tensors (sha256 {sha[:12]}…): the same "
+                            "teacher would be given twice")
+        by_content[sha] = ref
+    sizes = (check_teachers(teachers, encoder_widths if m.encoder_per_teacher else None, hidden) if teachers
              else (hidden or DEFAULT_HIDDEN, hidden or DEFAULT_HIDDEN))
     compiled, reason = decide_compile(compile_loss, steps)
     try:
@@ -84,7 +92,7 @@ def start_transfer(
     except ValidationError as err:
         raise MiktError(f"bad PPO setting: {describe_validation_error(err)}") from err
     config = RunConfig(ppo=ppo, pi_hidden=sizes[0], vf_hidden=sizes[1],
-                       options=None if parsed is None else parsed.model_dump())
+                       options=None if parsed is None else parsed.model_dump(), eval_episodes=eval_episodes)
     return new_run(registry, kind="transfer", env=to, method=method, seed=seed, total_steps=steps, config=config,
                    command=command, teachers=[teacher_ref(t) for t in teachers])
 
@@ -133,7 +141,8 @@ def save_student(run: Run, student: GaussianActorCritic, final_return: float | N
 
 
 def mixing_weights(agent) -> dict[str, float]:
-    return {k: v for k, v in agent.diagnostics().items() if k.startswith("p_")}
+    """The student's weights (p_…) and, with several teachers, each teacher's (w_…; see miktcli.mixing)."""
+    return {k: v for k, v in agent.diagnostics().items() if k.startswith(("p_", "w_"))}
 
 
 def finish_transfer(job: Job, episodes: int) -> dict[str, Any]:

@@ -3,13 +3,20 @@
 from __future__ import annotations
 
 import tomllib
+from collections import Counter
 from pathlib import Path
 from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from miktcli import compat
 from miktcli.errors import MiktError, describe_validation_error
 from miktcli.methods import get_method, transfer_methods
+
+# A grid's size limits. Every cell is a run folder and a line of state.json and results.md; beyond these a
+# grid is a mistake (a seed range typed wrong), and preparing it would take minutes before any cell trains.
+MAX_GRID_CELLS = 10_000  # pairs × methods × seeds
+MAX_GRID_FILE_BYTES = 1024 * 1024  # the TOML file; the committed grids are under 2 kB
 
 
 class PairSpec(BaseModel):
@@ -30,9 +37,13 @@ class MethodSpec(BaseModel):
     name: str
     method: str
     kl_coef: float | None = Field(None, ge=0, allow_inf_nan=False)
-    # the method's options; grids write them under the key `mikt` whatever the method (`mikt = { mi = false }`):
-    # mikt is the only method with options so far, and the key is part of every committed grid
-    options: dict[str, Any] = Field(default_factory=dict, alias="mikt")
+    # the method's options (`options = { mi = false }`), checked by the method's own options model
+    options: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _older(cls, data: Any) -> Any:
+        return compat.grid_method(data)
 
     @field_validator("method")
     @classmethod
@@ -40,6 +51,15 @@ class MethodSpec(BaseModel):
         if value not in transfer_methods():
             raise ValueError(f"unknown method '{value}', expected one of {', '.join(transfer_methods())}")
         return value
+
+    @model_validator(mode="after")
+    def _valid_options(self) -> MethodSpec:
+        # checked when the grid is read, so a bad option of one method creates no run of another
+        try:
+            get_method(self.method).parse_options(self.options)
+        except MiktError as err:
+            raise ValueError(str(err)) from None
+        return self
 
     @property
     def uses_teachers(self) -> bool:
@@ -67,6 +87,10 @@ class Grid(BaseModel):
 
     @model_validator(mode="after")
     def _no_duplicates(self) -> Grid:
+        cells = len(self.pairs) * len(self.methods) * len(self.seeds)
+        if cells > MAX_GRID_CELLS:
+            raise ValueError(f"{cells:,} cells ({len(self.pairs):,} pair(s) × {len(self.methods):,} method(s) × "
+                             f"{len(self.seeds):,} seed(s)); a grid holds at most {MAX_GRID_CELLS:,}")
         # Two methods of one name would share cells and overwrite each other; so would two equal pairs.
         # Report files are named by slugs, so names that differ only in punctuation would overwrite each other.
         for what, keys in (("method name", [m.name for m in self.methods]),
@@ -75,7 +99,7 @@ class Grid(BaseModel):
                            ("pair label", [p.name for p in self.pairs]),
                            ("pair label (as a file name)", [file_slug(p.name) for p in self.pairs]),
                            ("seed", [str(s) for s in self.seeds])):
-            dupes = sorted({k for k in keys if keys.count(k) > 1})
+            dupes = sorted(k for k, n in Counter(keys).items() if n > 1)  # linear: 100,000 seeds took minutes
             if dupes:
                 raise ValueError(f"duplicate {what}: {', '.join(dupes)}")
         beyond = [m for m in self.marks if not 0 < m <= self.steps]
@@ -88,7 +112,11 @@ class Grid(BaseModel):
 
 def load_grid(path: Path) -> Grid:
     try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        with open(path, "rb") as f:
+            raw = f.read(MAX_GRID_FILE_BYTES + 1)  # never more than the limit, whatever the file (/dev/zero)
+        if len(raw) > MAX_GRID_FILE_BYTES:
+            raise MiktError(f"{path}: a grid file holds at most {MAX_GRID_FILE_BYTES:,} bytes; this one is larger")
+        data = tomllib.loads(raw.decode("utf-8"))
         return Grid.model_validate(data)
     except FileNotFoundError:
         raise MiktError(f"grid file {path} not found") from None
@@ -105,8 +133,3 @@ def cell_key(pair: PairSpec, method: MethodSpec, seed: int) -> str:
     pair with that target shares it: the key leaves the teachers out ("-" in their place)."""
     source = "+".join(pair.teachers) if method.uses_teachers else "-"
     return f"{source}>{pair.to}|{method.name}|{seed}"
-
-
-def legacy_cell_key(pair: PairSpec, method: MethodSpec, seed: int) -> str:
-    """Keys of state.json files written by mikt 0.1, where every cell named its pair."""
-    return f"{'+'.join(pair.teachers)}>{pair.to}|{method.name}|{seed}"

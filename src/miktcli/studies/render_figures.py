@@ -1,0 +1,51 @@
+"""A study's figures from its summary: each pair's learning curves (mean ± sample std over seeds) and student
+weights, and every pair at a glance (summary.png) when the study has more than one."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from miktcli.plots import png_panels, png_plot
+from miktcli.studies.summary import PairSummary, StudySummary, partial_seed_labels
+
+SUMMARY_FIGURE = "summary.png"
+
+
+def curves_file(pair: PairSummary) -> str:
+    return f"curves-{pair.slug}.png"
+
+
+def weights_file(pair: PairSummary) -> str:
+    return f"weights-{pair.slug}.png"
+
+
+def draws_summary(summary: StudySummary) -> bool:
+    """The figure for a README: only for a study of several pairs with curves."""
+    return sum(bool(pair.with_runs) for pair in summary.pairs) > 1
+
+
+def _curve_panel(pair: PairSummary, seeds: int):
+    methods = pair.with_runs
+    series = {m.name: m.curve() for m in methods}
+    bands = {m.name: m.band() for m in methods}
+    return series, bands, partial_seed_labels({m.name: m.n for m in methods}, seeds)
+
+
+def write_figures(summary: StudySummary, out_dir: Path) -> None:
+    order = [m.name for m in summary.grid.methods]  # each method keeps its colour in every figure
+    seeds = len(summary.grid.seeds)
+    panels, panel_labels = [], []
+    for pair in summary.pairs:
+        if pair.with_runs:
+            series, bands, labels = _curve_panel(pair, seeds)
+            panels.append((series, pair.name, bands))
+            panel_labels.append(labels)
+            png_plot(series, out_dir / curves_file(pair), pair.name, "mean episode return", bands, order, labels)
+        weighted = [m for m in pair.methods if m.weight_curves]
+        if weighted:
+            series = {key: curve for m in weighted for key, curve in m.weight_curves.items()}
+            counts = {key: m.n for m in weighted for key in m.weight_curves}
+            png_plot(series, out_dir / weights_file(pair), f"{pair.name}: student weights", "p (student)",
+                     labels=partial_seed_labels(counts, seeds))
+    if draws_summary(summary):
+        png_panels(panels, out_dir / SUMMARY_FIGURE, "mean episode return", order=order, labels=panel_labels)

@@ -1,0 +1,48 @@
+"""summary.json and comparisons.json from a study's summary: the numbers of results.md, for scripts."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from miktcli.registry.files import write_text_atomic
+from miktcli.studies.summary import MethodSummary, StudySummary, sample_std
+
+
+def _json_number(value: float) -> float | None:
+    return float(value) if math.isfinite(float(value)) else None
+
+
+def _method_entry(m: MethodSummary, marks: dict[int, int]) -> dict[str, Any]:
+    mean, std, auc = m.mean, m.std, m.mean_over_training
+    return {
+        "runs": [r.id for r in m.runs], "n": m.n,
+        "final_eval_mean": float(np.mean(m.evals)), "final_eval_std": _json_number(sample_std(m.evals)),
+        "final_train_mean": float(mean[-1]), "final_train_std": _json_number(std[-1]),
+        "marks": {str(int(m.steps[i])): {"mean": float(mean[i]), "std": _json_number(std[i])}
+                  for i in marks.values() if 0 <= i < len(mean)},
+        "mean_over_training": float(np.mean(auc)), "mean_over_training_std": _json_number(sample_std(auc)),
+        "steps_to_baseline_final": m.reach, "steps_to_three_quarters_of_baseline_final": m.reach_75,
+    }
+
+
+def summary_json(summary: StudySummary) -> dict[str, Any]:
+    data: dict[str, Any] = {pair.name: {m.name: _method_entry(m, pair.marks) for m in pair.with_runs}
+                            for pair in summary.pairs}
+    if summary.left_out:
+        data["left_out"] = summary.left_out
+    return data
+
+
+def comparisons_json(summary: StudySummary) -> dict[str, list[dict[str, Any]]]:
+    return {pair.name: pair.comparisons for pair in summary.pairs}
+
+
+def write_json(summary: StudySummary, out_dir: Path) -> None:
+    write_text_atomic(out_dir / "summary.json", json.dumps(summary_json(summary), indent=2, ensure_ascii=False))
+    write_text_atomic(out_dir / "comparisons.json",
+                      json.dumps(comparisons_json(summary), indent=2, ensure_ascii=False))

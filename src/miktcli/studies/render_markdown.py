@@ -1,0 +1,143 @@
+"""results.md from a study's summary: per-pair tables (marks, mean over training, final eval, steps to the
+baseline), each pair's comparisons over seeds, the figures' links, and the table of every cell's run."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from miktcli.registry.cards import describe_code_history
+from miktcli.registry.runs import Run
+from miktcli.studies.render_figures import SUMMARY_FIGURE, curves_file, draws_summary, weights_file
+from miktcli.studies.summary import MethodSummary, PairSummary, StudySummary, mean_pm_std
+
+
+def comparison_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """The comparisons over seeds (rows of `compare_methods`) as a Markdown section; none without rows."""
+    if not rows:
+        return []
+    lines = []
+    for c in rows:
+        p = f"{c['p_value']:.3f}" + ("" if c["exact"] else " (Monte Carlo)")
+        lines.append(f"| {c['a']} vs {c['b']} | {c['n_a']} / {c['n_b']} | {c['measure']} | {c['difference']:+,.0f} | "
+                     f"{c['p_improvement']:.2f} | {p} | {c['smallest_p']:.3f} |")
+    header = ["", "### Comparisons over seeds", "",
+              "A − B is the difference of the seed means; P(A > B) the fraction of seed pairs in which A is higher "
+              "(ties half); p the two-sided permutation test of the difference (every split of the pooled seeds), "
+              "which cannot go below the floor its seed counts allow.", "",
+              "| A vs B | n (A / B) | measure | A − B | P(A > B) | p | smallest possible p |",
+              "|---|---|---|---|---|---|---|"]
+    return header + lines
+
+
+def _eval_cell(result: dict[str, Any], name: str) -> str:
+    ev = result.get(name) or {}
+    if not isinstance(ev.get("return_mean"), int | float):
+        return "—"
+    std = ev.get("return_std")
+    return f"{ev['return_mean']:,.0f}" + (f" ± {std:,.0f}" if isinstance(std, int | float) else "")
+
+
+def run_row(run: Run | None) -> str:
+    """A run's cells of the study's run table: state, final returns, which code trained it."""
+    if run is None:
+        return " | ".join(["missing from the registry", "—", "—", "—", "—"])
+    card = run.card
+    state = "completed" if card.status == "completed" else f"{run.status}, {card.steps_done:,}/{card.total_steps:,}"
+    final = card.result.get("final_train_return") if card.status == "completed" else None
+    final = final if isinstance(final, int | float) else None
+    code = describe_code_history(card.code_history, card.code_version, trained=card.steps_done > 0)
+    return " | ".join([state, "—" if final is None else f"{final:,.0f}",
+                       _eval_cell(card.result, "eval_without_teacher"), _eval_cell(card.result, "eval_with_teacher"),
+                       code])
+
+
+def _method_row(m: MethodSummary, pair: PairSummary, columns: int) -> str:
+    if not m.runs:
+        return f"| {m.name} | 0 | " + " | ".join("—" for _ in range(columns)) + " |"
+    mean = m.mean
+    cells = ["—" if i < 0 or i >= len(mean) or math.isnan(mean[i]) else mean_pm_std(m.curves[:, i])
+             for i in pair.marks.values()]
+    weights = "—"
+    if m.final_weights is not None:
+        pi = "/".join(f"{v:.2f}" for k, v in m.final_weights.items() if k.startswith("p_pi"))
+        vf = "/".join(f"{v:.2f}" for k, v in m.final_weights.items() if k.startswith("p_vf"))
+        weights = f"{pi} · {vf}"
+    return (f"| {m.name} | {m.n} | " + " | ".join(cells) + f" | {mean_pm_std(m.mean_over_training)} | "
+            f"{mean_pm_std(m.evals)} | {m.reach} | {m.reach_75} | {weights} |")
+
+
+def _pair_section(pair: PairSummary, baseline: str) -> list[str]:
+    header = ["method", "n", *pair.mark_labels, "mean over training",
+              "final eval (no teacher)", f"steps to {baseline} final", f"steps to ¾ of {baseline} final",
+              "final student weights p (π / V)"]
+    lines = [f"## {pair.name}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += [_method_row(m, pair, len(header) - 2) for m in pair.methods]
+    lines += comparison_lines(pair.comparisons)
+    if pair.with_runs:
+        lines += ["", f"![learning curves]({curves_file(pair)})"]
+    if any(m.weight_curves for m in pair.methods):
+        lines += ["", f"![student weights]({weights_file(pair)})"]
+    return [*lines, ""]
+
+
+def _intro(summary: StudySummary) -> list[str]:
+    g = summary.grid
+    lines = [f"# Study `{g.name}`", ""]
+    if summary.left_out:  # said at the top: these runs finished but their numbers are in no table below
+        lines += ["**Completed runs left out** (their files are incomplete; restore them from a snapshot or "
+                  "train the cells again):", "", *(f"- {problem}" for problem in summary.left_out), ""]
+    failed = [(key, run_id, run.card.error or "no error recorded") for key, run_id, run in summary.cells
+              if run is not None and run.card.status == "failed"]
+    if failed:  # also at the top: a study with a failed cell is not finished, whatever its tables show
+        lines += ["**Failed cells** (their runs stopped with an error; running the study again retries them):", "",
+                  *(f"- {key}: {run_id}: {error}" for key, run_id, error in failed), ""]
+    if draws_summary(summary):
+        lines += [f"![every pair]({SUMMARY_FIGURE})", ""]
+    return lines + [
+        f"{g.steps:,} steps per run, seeds {g.seeds}, {g.eval_episodes} evaluation episodes per run. "
+        "Returns are the mean training-episode return over the last 100 episodes at each mark (the last "
+        "iteration at or before it: the column names that step), then mean ± sample std (ddof 1) over "
+        "the n completed seeds; *mean over training* averages that curve over the whole run (area under "
+        "the curve per step); *final eval* is the teacher-free student, deterministic, on fresh seeds. "
+        f"*¾ of {g.baseline} final* is the level a quarter of |final| below the baseline's final return "
+        "(0.75 × final when it is positive).",
+        "", *_teacher_lines(summary)]
+
+
+def _teacher_lines(summary: StudySummary) -> list[str]:
+    """Which teacher version each grid reference meant: one per reference (pinned when the study was first
+    prepared), or every version where a study prepared before pinning mixed them."""
+    if not summary.teachers:
+        return []
+    parts = []
+    for ref, versions in summary.teachers.items():
+        if len(versions) == 1:
+            parts.append(f"`{ref}` → {versions[0].ref} (sha256 {versions[0].sha256[:12]})")
+            continue
+        described = []
+        for v in versions:
+            runs = ", ".join(v.runs[:5]) + (f" and {len(v.runs) - 5} more" if len(v.runs) > 5 else "")
+            described.append(f"{v.ref} (sha256 {v.sha256[:12]}; {runs})")
+        parts.append(f"`{ref}` → **mixed versions**: " + ", ".join(described))
+    return ["Teachers: " + "; ".join(parts) + ".", ""]
+
+
+def _runs_section(summary: StudySummary) -> list[str]:
+    lines = ["## Runs", "", "Cells without teachers (`-`) are one run shared by every pair with that target. "
+             "*state* is the run's when this report was written; *final train return* the mean over the last 100 "
+             "training episodes; the evals are deterministic, on fresh seeds (mean ± std over episodes). "
+             "`tensorboard --logdir tensorboard` (in this folder) shows every run, grouped pair / method / seed.", "",
+             "| cell (teachers > target) | method | seed | run | state | final train return | eval (no teacher) "
+             "| eval (with teacher) | trained by (commit from step) |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {' | '.join(key.split('|'))} | {run_id} | {run_row(run)} |" for key, run_id, run in summary.cells]
+    return lines
+
+
+def render_markdown(summary: StudySummary) -> str:
+    lines = _intro(summary)
+    for pair in summary.pairs:
+        lines += _pair_section(pair, summary.grid.baseline)
+    return "\n".join(lines + _runs_section(summary)) + "\n"
+

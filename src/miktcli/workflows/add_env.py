@@ -1,0 +1,182 @@
+"""`mikt envs add`: turn an MJCF file into an `mjcf` spec in your spec folder.
+
+The XML is copied into SPECS/NAME/ beside the spec, with every file it loads (includes, meshes, textures,
+height fields, skins) at the same relative paths, so the spec keeps working after the original folder is moved
+or deleted. A model that loads a file outside its own folder cannot be copied that way: its spec then names
+the XML where it lies (an absolute path), and `AddedEnv.copied` is False so the CLI says so.
+
+Everything is checked before anything is written; the copy is built once more from its new place; the spec
+appears last, whole or not at all.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+
+from miktcli.envs.factory import env_dims, model_facts
+from miktcli.envs.mjcf import MjcfEnv, Root, body_name, find_root, load_model
+from miktcli.envs.spec import SPEC_NAME_RE, MjcfSpec, load_spec_file, spec_names, user_specs_dir
+from miktcli.errors import MiktError
+from miktcli.registry.files import write_text_atomic
+
+# healthy_z_min of an added model: this fraction of the torso's starting height (gymnasium's Hopper, Walker2d
+# and Humanoid stop at 0.56, 0.64 and 0.71 of theirs); no other health check, nothing else but defaults.
+HEALTHY_HEIGHT_FRACTION = 0.5
+
+
+@dataclass
+class AddedEnv:
+    spec: MjcfSpec
+    spec_path: Path
+    xml_path: Path  # the XML the spec uses
+    copied: bool  # False: the spec refers to the original XML in place
+    files: list[str]  # files copied beside the XML (relative paths)
+    root: str  # the chosen torso and its root joint, in words
+    facts: dict
+
+
+def _referenced_files(xml: Path) -> list[Path]:
+    """Every file the model loads besides itself, as absolute paths (MuJoCo's rules: includes relative to
+    the main file's folder; meshes, height fields and skins under meshdir; textures under texturedir)."""
+    base = xml.parent
+    found: list[Path] = []
+    pending = [xml]
+    while pending:  # includes may include
+        try:
+            tree = ET.parse(pending.pop())
+        except (ET.ParseError, OSError) as err:
+            raise MiktError(f"{xml}: not a valid MJCF model: {err}") from err
+        for node in tree.iter("include"):
+            if node.get("file"):
+                path = base / node.get("file")
+                found.append(path)
+                pending.append(path)
+    try:
+        spec = mujoco.MjSpec.from_file(str(xml))
+    except ValueError as err:
+        raise MiktError(f"{xml}: not a valid MJCF model: {' '.join(str(err).split())}") from err
+
+    def under(folder: str, name: str) -> Path:
+        path = Path(name)
+        return path if path.is_absolute() else base / folder / path
+
+    for asset in [*spec.meshes, *spec.hfields, *spec.skins]:
+        if asset.file:
+            found.append(under(spec.meshdir, asset.file))
+    for texture in spec.textures:
+        for name in [texture.file, *getattr(texture, "cubefiles", [])]:
+            if name:
+                found.append(under(spec.texturedir, name))
+    return list(dict.fromkeys(found))
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    try:
+        path.resolve().relative_to(folder.resolve())
+        return True
+    except ValueError:
+        return False
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)  # a JSON string is a TOML basic string
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    return repr(value)
+
+
+def spec_toml(spec: MjcfSpec) -> str:
+    """Every term written out (unset health checks as a comment), so the file documents the task."""
+    dumped = spec.model_dump()
+    first = ("name", "family", "xml", "torso", "obs_dim", "act_dim")
+    data = {**{k: dumped[k] for k in first}, **{k: v for k, v in dumped.items() if k not in first}}
+    unset = [k for k, v in data.items() if v is None]
+    lines = [f"{k} = {_toml_value(v)}" for k, v in data.items() if v is not None]
+    if unset:
+        lines.append(f"# unset (no such check or bound; see `mikt envs show`): {', '.join(unset)}")
+    return "\n".join(lines) + "\n"
+
+
+def default_terms(model: mujoco.MjModel, root: Root) -> dict:
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    height = float(data.xpos[root.body][2])
+    return {"healthy_z_min": round(HEALTHY_HEIGHT_FRACTION * height, 3)} if height > 0 else {}
+
+
+def add_mjcf(xml: Path, name: str, torso: str | None = None, folder: Path | None = None) -> AddedEnv:
+    """Check `xml`, then write SPECS/NAME.toml (and SPECS/NAME/ with the copied model). Raises MiktError, having
+    written nothing, on any problem."""
+    xml = Path(xml).expanduser()
+    if not SPEC_NAME_RE.fullmatch(name):
+        raise MiktError(f"invalid environment name '{name}': lowercase letters, digits, '.', '_' and '-'")
+    folder = Path(folder) if folder is not None else user_specs_dir()
+    if name in spec_names():
+        raise MiktError(f"environment '{name}' exists already", hint="choose another --name")
+    target_toml, target_dir = folder / f"{name}.toml", folder / name
+    for path in (target_toml, target_dir):
+        if path.exists():
+            raise MiktError(f"{path} exists already", hint="choose another --name, or remove it")
+    model = load_model(xml)
+    if model.nu == 0:
+        raise MiktError(f"{xml}: the model has no actuator (nothing for a policy to drive)")
+    try:
+        root = find_root(model, torso)
+    except MiktError as err:
+        raise MiktError(f"{xml}: {err}") from err
+    referenced = _referenced_files(xml)
+    copied = all(_inside(p, xml.parent) for p in referenced)
+
+    staging = folder / f".{name}.{os.getpid()}.tmp"
+    try:
+        if copied:
+            staging.mkdir(parents=True)
+            shutil.copy2(xml, staging / xml.name)
+            files = []
+            for path in referenced:
+                relative = path.resolve().relative_to(xml.parent.resolve())
+                (staging / relative).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(path, staging / relative)
+                files.append(str(relative))
+            xml_field, built_from = f"{name}/{xml.name}", (staging / xml.name).resolve()
+        else:
+            files, xml_field, built_from = [], str(xml.resolve()), xml.resolve()
+        env = MjcfEnv(_spec(name, str(built_from), root, model, torso, obs_dim=1, act_dim=model.nu))
+        obs_dim, act_dim = env_dims(env)
+        facts = model_facts(env)
+        root_words = env.root.describe(env.model)
+        env.close()
+        spec = _spec(name, xml_field, root, model, torso, obs_dim=obs_dim, act_dim=act_dim,
+                     notes=f"added with `mikt envs add` from {xml.name}")
+        folder.mkdir(parents=True, exist_ok=True)
+        if copied:
+            staging.rename(target_dir)
+        try:
+            write_text_atomic(target_toml, spec_toml(spec))
+            spec = load_spec_file(target_toml)  # what every later command reads: it must parse back
+        except BaseException:
+            target_toml.unlink(missing_ok=True)
+            if copied:
+                shutil.rmtree(target_dir, ignore_errors=True)
+            raise
+    except OSError as err:
+        raise MiktError(f"cannot write the spec for '{name}' into {folder}: {err.strerror or err}") from err
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging, ignore_errors=True)
+    return AddedEnv(spec, target_toml, spec.xml_path(), copied, files, root_words, facts)
+
+
+def _spec(name: str, xml: str, root: Root, model: mujoco.MjModel, torso: str | None, **fields) -> MjcfSpec:
+    return MjcfSpec(name=name, family="mjcf", xml=xml, torso=torso or body_name(model, root.body),
+                    **default_terms(model, root), **fields)

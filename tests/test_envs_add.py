@@ -1,0 +1,117 @@
+"""`mikt envs add`: your own robot from an MJCF file, to a transfer and a video; bad files write nothing."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import gymnasium as gym
+import pytest
+from typer.testing import CliRunner
+
+from miktcli.cli.app import app
+
+ASSETS = Path(gym.__file__).parent / "envs" / "mujoco" / "assets"
+runner = CliRunner()
+
+
+def mikt(*args, code=0):
+    result = runner.invoke(app, [str(a) for a in args])
+    assert result.exit_code == code, result.output
+    return result
+
+
+@pytest.fixture()
+def specs(tmp_path, monkeypatch):
+    folder = tmp_path / "specs"
+    folder.mkdir()
+    monkeypatch.setenv("MIKT_ENVSPECS", str(folder))
+    return folder
+
+
+def test_walker2d_from_gymnasium_xml_is_added_and_trained_from_the_packaged_hopper(specs, registry, monkeypatch,
+                                                                                    tmp_path):
+    r = mikt("envs", "add", ASSETS / "walker2d_v5.xml", "--name", "walker")
+    assert r.stdout.strip() == str(specs / "walker.toml")
+    assert "actuators (6): thigh_joint, leg_joint, foot_joint" in r.output
+    assert "torso: torso (slide root: rootx, rootz, rooty)" in r.output
+    assert (specs / "walker" / "walker2d_v5.xml").read_bytes() == (ASSETS / "walker2d_v5.xml").read_bytes()
+    shown = json.loads(mikt("envs", "show", "walker", "--json").stdout)
+    assert (shown["spec"]["obs_dim"], shown["spec"]["act_dim"]) == (17, 6)
+    assert shown["spec"]["xml"] == "walker/walker2d_v5.xml" and len(shown["model"]["actuators"]) == 6
+    names = [d["name"] for d in json.loads(mikt("envs", "--json").stdout)]
+    assert "walker" in names and "hopper" in names  # your specs sit above the shipped ones
+
+    # the spec keeps working from anywhere: the XML was copied beside it
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("MIKT_PACKAGED_TEACHERS", "1")
+    r = mikt("transfer", "--from", "hopper", "--to", "walker", "--steps", 2048, "--eval-episodes", 1, "--json")
+    assert json.loads(r.stdout)["run"] == "run1"
+    card = json.loads(mikt("inspect", "--json").stdout)["card"]  # no target: the newest run
+    assert card["run_id"] == "run1" and card["env"] == "walker" and card["steps_done"] == 2048
+    assert card["teachers"][0]["name"] == "hopper"  # the packaged teacher: this registry has none
+    assert not (registry / "teachers").exists()
+
+    # eval with no target: the newest run, its video named after it
+    r = mikt("eval", "--render-offscreen", "--episodes", 1, "--video-frames", 5)
+    assert (tmp_path / "run1-eval.mp4").stat().st_size > 0 and (tmp_path / "run1-eval.png").exists()
+    assert "run1 student on walker" in r.stdout
+
+
+def test_an_xml_with_meshes_and_includes_is_copied_with_them(specs, tmp_path):
+    robot = tmp_path / "vendor"
+    (robot / "meshes").mkdir(parents=True)
+    # a one-tetrahedron mesh (Wavefront OBJ) and an included file holding the actuator
+    (robot / "meshes" / "foot.obj").write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\n"
+                                               "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    (robot / "motors.xml").write_text('<mujoco><actuator><motor joint="hip" gear="10"/></actuator></mujoco>')
+    (robot / "bot.xml").write_text(
+        '<mujoco><compiler meshdir="meshes"/><asset><mesh name="foot" file="foot.obj"/></asset><worldbody>'
+        '<geom type="plane" size="5 5 .1"/><body name="base" pos="0 0 0.5"><freejoint/>'
+        '<geom type="sphere" size="0.1"/><body name="leg"><joint name="hip" type="hinge" axis="0 1 0"/>'
+        '<geom type="mesh" mesh="foot"/></body></body></worldbody><include file="motors.xml"/></mujoco>')
+    r = mikt("envs", "add", robot / "bot.xml", "--name", "bot")
+    assert "copied the XML and 2 file(s)" in r.output
+    assert (specs / "bot" / "meshes" / "foot.obj").is_file() and (specs / "bot" / "motors.xml").is_file()
+    import shutil
+
+    shutil.rmtree(robot)  # the user moves on
+    shown = json.loads(mikt("envs", "show", "bot", "--json").stdout)
+    assert shown["spec"]["torso"] == "base" and shown["model"]["actuators"] == ["hip"]
+    assert shown["spec"]["obs_dim"] == (8 - 2) + 7  # free joint's qpos without x, y; then qvel
+
+
+BAD = {
+    "unparsable": ("<mujoco><worldbody><body>", "not a valid MJCF model"),
+    "no_actuator": ('<mujoco><worldbody><body><freejoint/><geom size="0.1"/></body></worldbody></mujoco>',
+                    "the model has no actuator"),
+    "no_root": ('<mujoco><worldbody><body><joint name="j"/><geom size="0.1"/></body></worldbody>'
+                '<actuator><motor joint="j"/></actuator></mujoco>', "no free or slide root joint"),
+}
+
+
+@pytest.mark.parametrize("case", [*BAD, "missing", "unreadable", "directory"])
+def test_bad_files_are_one_error_line_and_write_nothing(specs, tmp_path, case):
+    path = tmp_path / f"{case}.xml"
+    if case in BAD:
+        path.write_text(BAD[case][0])
+    elif case == "unreadable":
+        path.write_text(BAD["no_actuator"][0])
+        path.chmod(0)
+        if os.access(path, os.R_OK):  # root reads anything: that case cannot be made here
+            pytest.skip("running as root: every file is readable")
+    elif case == "directory":
+        path.mkdir()
+    r = mikt("envs", "add", path, "--name", "robot", code=1)
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"Error: {path}: "), r.output
+    want = {"missing": "no such file", "unreadable": "cannot be read", "directory": "not a file"}
+    assert (BAD[case][1] if case in BAD else want[case]) in lines[0]
+    assert list(specs.iterdir()) == []
+
+
+def test_names_are_checked_before_anything_is_written(specs):
+    assert "exists already" in mikt("envs", "add", ASSETS / "hopper.xml", "--name", "hopper", code=1).output
+    assert "invalid environment name" in mikt("envs", "add", ASSETS / "hopper.xml", "--name", "A/b", code=1).output
+    assert list(specs.iterdir()) == []

@@ -1,0 +1,34 @@
+"""A spec folder holding things that are not spec files (issue 37, M): a folder named `x.toml` is named as not
+a spec, and never hides the good specs from `mikt envs` nor breaks gym.make."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from miktcli.cli.app import app
+from test_hardening import spec_dir
+
+
+def test_a_folder_named_toml_does_not_break_mikt_envs(tmp_path, monkeypatch):
+    spec_dir(tmp_path, monkeypatch)
+    (tmp_path / "specs" / "stray.toml").mkdir()
+    r = CliRunner().invoke(app, ["envs"])
+    assert "hopper" in r.stdout and "centipede-four" in r.stdout, r.output
+    assert "stray.toml: a folder, not a spec file" in r.output and "internal error" not in r.output
+    r = CliRunner().invoke(app, ["envs", "show", "stray"])
+    assert r.exit_code == 1 and "unknown environment 'stray'; known: centipede-four, hopper" in r.output
+
+
+def test_a_folder_named_toml_does_not_break_gym_make(tmp_path, monkeypatch):
+    spec_dir(tmp_path, monkeypatch)
+    (tmp_path / "specs" / "stray.toml").mkdir()
+    code = ("import gymnasium as gym\n"
+            "env = gym.make('miktcli.gym:mikt/hopper')\n"
+            "import miktcli.gym\n"
+            "print(sorted(miktcli.gym.ENV_IDS))\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                       env={**__import__("os").environ, "PYTHONPATH": str(Path(__file__).parents[1] / "src")})
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "['mikt/centipede-four', 'mikt/hopper']"
