@@ -1,5 +1,7 @@
 """The lean step (envs/lean.py) against the gymnasium env it replaces: whole rollouts, bit for bit."""
 
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -8,7 +10,10 @@ import torch
 import miktcli.gym  # noqa: F401 - registers mikt/NAME with gymnasium
 from miktcli.envs import load_spec, make_env
 from miktcli.envs.lean import lean_stepper
+from miktcli.envs.spec import MjcfSpec
 from miktcli.envs.vector import SyncEnvs
+
+ASSETS = Path(gym.__file__).parent / "envs" / "mujoco" / "assets"
 
 
 def spec_env(name, limit, **kwargs):
@@ -53,6 +58,13 @@ CASES = {
     "ant-terminating": (spec_env("ant", 40, healthy_z_range=(0.45, 1.0)), 120),
     "hopper": (spec_env("hopper", 30), 200),
     "mikt/centipede-four (gym.make)": (lambda: gym.make("mikt/centipede-four", max_episode_steps=20), 80),
+    # the mjcf family (your own robot): terminating walkers, and one that also ends on its own time limit
+    "mjcf hopper": (lambda: make_env(MjcfSpec(name="h", family="mjcf", xml=str(ASSETS / "hopper.xml"), obs_dim=11,
+                                              act_dim=3, healthy_z_min=0.7, healthy_angle_range=(-0.2, 0.2),
+                                              max_episode_steps=11)), 150),
+    "mjcf walker": (lambda: make_env(MjcfSpec(name="w", family="mjcf", xml=str(ASSETS / "walker2d_v5.xml"),
+                                              obs_dim=17, act_dim=6, healthy_z_min=0.8, healthy_z_max=2.0,
+                                              max_episode_steps=45)), 300),
 }
 
 
