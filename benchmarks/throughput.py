@@ -1,205 +1,387 @@
-"""Throughput, side by side in one process: this engine's PPO, Stable-Baselines3's PPO, MIKT, physics limit.
+"""Throughput, side by side in one run: the physics limit, this engine's PPO and MIKT, Stable-Baselines3.
 
-    python benchmarks/throughput.py [--steps 20480] [--env ant] [--json benchmarks/results/throughput.json]
+    python benchmarks/throughput.py                 # the full run (~6-8 min on a quiet machine)
+    python benchmarks/throughput.py --quick --out /tmp/tp   # a smoke run of every part (tests use it)
 
-Same env (Ant, the paper's 111-dim layout), same hyper-parameters (paper settings, 1 env, one thread).
-Reports env-steps/s and their ratio, this engine's split into env / inference / update time, the
-physics-only limit (mj_step x frame_skip), the MIKT update cost relative to a plain PPO update on the same
-target (1, 2 and 3 teachers), eager and with `--compile` (PPOConfig.compile_loss; the compile's own time is
-left out of the rates), the arithmetic of one minibatch update (FLOPs, forward + backward) for each, and peak
-resident memory. Needs `pip install -e .[bench]` for Stable-Baselines3.
+One run measures, each as the best (min time) of --repeats, the systems compared alternated:
+1. the physics-only limit: Ant's `mj_step` × frame_skip, nothing else;
+2. in process (Ant, the paper's settings, 1 env, 1 thread, after one untimed warm-up iteration): this engine's
+   PPO (its rollout as a fraction of the physics limit; env / inference / update per env step) against
+   Stable-Baselines3's PPO with VecNormalize (benchmarks/sb3_ppo_script.py);
+3. whole processes as users run them: `mikt teacher train ant` against the SB3 script (30,720 steps), a
+   one-teacher transfer (centipede-six → centipede-eight) and a two-teacher transfer (centipede-four +
+   centipede-six → centipede-eight) against PPO from scratch on centipede-eight (`--method vpg`), 20,480 steps;
+4. the per-piece breakdown (microbenchmarks, min of repeats): env step through gymnasium and lean,
+   observation normaliser, reward scaler and batch-of-one forward (module path and rollout path), and the
+   minibatch update step eager and compiled for PPO and MIKT with 1 and 2 teachers.
+It writes the figures (JSON) and a Markdown page of tables stamped with the date and the command
+(benchmarks/results/throughput.json and throughput.md by default). Needs `pip install -e .[bench]` (SB3).
+Absolute figures drift with the machine's load; only the ratios of one run count.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import json
+import os
 import platform
-import resource
+import shlex
+import shutil
+import subprocess
 import sys
+import tempfile
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import mujoco
+import numpy as np
 import torch
 
-from miktcli.envs import load_spec, make_env
+from miktcli.compile_choice import AUTO_MIN_STEPS
+from miktcli.envs import make_env
+from miktcli.envs.vector import SyncEnvs
 from miktcli.methods.mikt import MiktActorCritic, MiktConfig
 from miktcli.policies import GaussianActorCritic
-from miktcli.ppo import Minibatch, PPOConfig, PPOTrainer
+from miktcli.ppo import PPOConfig, PPOTrainer, RewardScaler
+
+ROOT = Path(__file__).resolve().parents[1]
+TARGETS = {"rollout_vs_physics": 0.70, "ppo_vs_sb3": 2.5, "teacher_vs_sb3_script": 2.5,
+           "one_teacher_vs_ppo": 1.25, "two_teachers_vs_ppo": 1.5}
 
 
-def rss_mib() -> float:
-    """Current resident set size (Linux), in MiB."""
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * resource.getpagesize() / 2**20
+def best_time(fn: Callable[[], object], number: int, repeats: int) -> float:
+    """Seconds per call: the best of `repeats` timings of `number` calls."""
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        for _ in range(number):
+            fn()
+        best = min(best, (time.perf_counter() - t) / number)
+    return best
 
 
-def peak_rss_mib() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+def teacher_net(env: str) -> GaussianActorCritic:
+    env_obj = make_env(env)
+    obs, act = env_obj.observation_space.shape[0], env_obj.action_space.shape[0]
+    env_obj.close()
+    return GaussianActorCritic(obs, act).requires_grad_(False)
 
 
-def physics_limit(env_name: str, steps: int = 5000) -> float:
+def mikt_agent(target: str, teachers: list[str]) -> MiktActorCritic:
+    probe = make_env(target)
+    obs, act = probe.observation_space.shape[0], probe.action_space.shape[0]
+    probe.close()
+    return MiktActorCritic(obs, act, [teacher_net(t) for t in teachers], MiktConfig(coupling_schedule="constant"))
+
+
+# --- 1. physics -------------------------------------------------------------------------------------------
+def physics_us(env_name: str, number: int, repeats: int) -> float:
     env = make_env(env_name)
     env.reset(seed=0)
     model, data = env.unwrapped.model, env.unwrapped.data
     frame_skip = getattr(env.unwrapped, "frame_skip", 5)
     data.ctrl[:] = 0.1
-    t = time.perf_counter()
-    for _ in range(steps):
-        mujoco.mj_step(model, data, nstep=frame_skip)
-    return steps / (time.perf_counter() - t)
+    return 1e6 * best_time(lambda: mujoco.mj_step(model, data, nstep=frame_skip), number, repeats)
 
 
-def update_flops(trainer: PPOTrainer) -> int:
-    """FLOPs of one minibatch's loss, forward and backward (torch's own counter)."""
-    from torch.utils.flop_counter import FlopCounterMode
-
-    cfg = trainer.config
-    n, obs_dim, act_dim = cfg.minibatch_size, trainer.envs.obs.shape[1], trainer.agent.log_std.shape[0]
-    mb = Minibatch(obs=torch.randn(n, obs_dim), actions=torch.randn(n, act_dim), log_probs=torch.randn(n),
-                   means=torch.randn(n, act_dim), advantages=torch.randn(n), returns=torch.randn(n),
-                   values=torch.randn(n))
-    with FlopCounterMode(display=False) as counter:
-        loss, _ = trainer.loss(mb, trainer.agent.log_std.detach().clone())
-        loss.backward()
-    trainer.flat.zero_grad()
-    return counter.get_total_flops()
-
-
-def run_engine(env_name: str, agent, steps: int, seed: int, kl_coef: float = 0.0,
-               compile_loss: bool = False) -> dict:
-    config = PPOConfig(kl_coef=kl_coef, compile_loss=compile_loss)
-    trainer = PPOTrainer(agent, lambda: make_env(env_name), config, steps + config.batch_size, seed)
-    flops = update_flops(trainer)
-    totals = {"time_env": 0.0, "time_inference": 0.0, "time_rollout": 0.0, "time_update": 0.0}
-    rss = []
+# --- 2. in process ----------------------------------------------------------------------------------------
+def engine_run(steps: int, seed: int) -> dict:
+    """This engine's PPO on Ant, eager update (what `mikt teacher train` runs at this size)."""
+    torch.manual_seed(seed)
+    config = PPOConfig()
+    trainer = PPOTrainer(GaussianActorCritic(111, 8), lambda: make_env("ant"), config,
+                         steps + config.batch_size, seed)
     iterations = trainer.run()
-    next(iterations)  # not timed: the first iteration compiles the loss (with --compile) and warms up
+    next(iterations)  # untimed warm-up
+    totals = dict.fromkeys(("time_env", "time_inference", "time_rollout", "time_update"), 0.0)
     t = time.perf_counter()
     for m in iterations:
         for k in totals:
             totals[k] += m[k]
-        rss.append(rss_mib())
     wall = time.perf_counter() - t
     trainer.close()
     n = trainer.global_step - config.batch_size
-    return {
-        "steps": n, "wall_s": wall, "steps_per_sec": n / wall, "update_flops": flops,
-        "rollout_steps_per_sec": n / totals["time_rollout"],
-        "us_per_step": {k[5:]: 1e6 * v / n for k, v in totals.items()},
-        "update_s_per_iteration": totals["time_update"] / (trainer.iteration - 1),
-        "rss_first_iteration_mib": rss[0], "rss_last_iteration_mib": rss[-1],
-    }
+    us = {k[5:]: 1e6 * v / n for k, v in totals.items()}
+    us["rollout_other"] = us["rollout"] - us["env"] - us["inference"]  # buffers, reward scaling, loop
+    return {"steps": n, "wall_s": wall, "steps_per_sec": n / wall, "rollout_steps_per_sec": n / totals["time_rollout"],
+            "us_per_step": us, "lean_env": trainer.envs.lean}
 
 
-def run_sb3(env_name: str, steps: int, seed: int) -> dict:
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+def sb3_run(steps: int, seed: int) -> dict:
+    from sb3_ppo_script import make_model
 
-    venv = VecNormalize(DummyVecEnv([lambda: make_env(env_name)]), norm_obs=True, norm_reward=True,
-                        clip_obs=10.0, clip_reward=10.0, gamma=0.99)
-    model = PPO(
-        "MlpPolicy", venv, n_steps=2048, batch_size=64, n_epochs=10, learning_rate=lambda f: 3e-4 * f,
-        gamma=0.99, gae_lambda=0.95, clip_range=0.2, ent_coef=0.0, vf_coef=0.5, max_grad_norm=0.5,
-        policy_kwargs={"net_arch": {"pi": [64, 64], "vf": [64, 64]}, "activation_fn": torch.nn.Tanh,
-                       "log_std_init": 0.0, "ortho_init": True},
-        seed=seed, device="cpu", verbose=0,
-    )
+    model = make_model(seed)
+    model.learn(total_timesteps=2048)  # the same untimed warm-up iteration as the engine's
     t = time.perf_counter()
-    model.learn(total_timesteps=steps)
+    model.learn(total_timesteps=steps, reset_num_timesteps=False)
     wall = time.perf_counter() - t
     return {"steps": steps, "wall_s": wall, "steps_per_sec": steps / wall}
 
 
-def main() -> None:
+# --- 3. whole processes -----------------------------------------------------------------------------------
+def whole_process(commands: dict[str, list[str]], repeats: int, env: dict[str, str]) -> dict[str, dict]:
+    """Wall time of each command as a fresh process (imports included), best of `repeats`, alternated."""
+    times: dict[str, list[float]] = {name: [] for name in commands}
+    for _ in range(repeats):
+        for name, cmd in commands.items():
+            t = time.perf_counter()
+            done = subprocess.run(cmd, env=env, capture_output=True, text=True)
+            elapsed = time.perf_counter() - t
+            if done.returncode:
+                raise RuntimeError(f"{shlex.join(cmd)} failed ({done.returncode}): {done.stderr.strip()[-600:]}")
+            times[name].append(elapsed)
+    return {name: {"command": shlex.join(commands[name]), "wall_s": min(t), "all_s": t} for name, t in times.items()}
+
+
+def process_commands(steps_teacher: int, steps_transfer: int) -> dict[str, list[str]]:
+    py = sys.executable
+    transfer = [py, "-m", "miktcli", "transfer", "--to", "centipede-eight", "--steps", str(steps_transfer),
+                "--eval-episodes", "1"]
+    return {
+        "mikt_teacher_train_ant": [py, "-m", "miktcli", "teacher", "train", "ant", "--steps", str(steps_teacher),
+                                   "--name", "bench-ant"],
+        "sb3_ppo_script": [py, str(ROOT / "benchmarks" / "sb3_ppo_script.py"), "--steps", str(steps_teacher)],
+        "ppo_from_scratch_eight": [*transfer, "--method", "vpg"],
+        "one_teacher_six_to_eight": [*transfer, "--from", "centipede-six"],
+        "two_teachers_four_six_to_eight": [*transfer, "--from", "centipede-four", "--from", "centipede-six"],
+    }
+
+
+# --- 4. pieces --------------------------------------------------------------------------------------------
+def env_pieces(number: int, repeats: int) -> dict:
+    out = {}
+    for name in ("ant", "centipede-eight", "hopper"):
+        row = {}
+        for label, lean in (("gymnasium", False), ("lean", True)):
+            envs = SyncEnvs([make_env(name)], seed=0, lean=lean)
+            action = np.zeros((1, envs.action_low.shape[0]), np.float32)
+            row[f"step_{label}_us"] = 1e6 * best_time(lambda e=envs, a=action: e.step(a), number, repeats)
+            envs.close()
+        row["physics_us"] = physics_us(name, number, repeats)
+        out[name] = row
+    return out
+
+
+def rollout_pieces(number: int, repeats: int) -> dict:
+    rng = np.random.default_rng(0)
+    obs = rng.standard_normal((1, 111)) * 3
+    agent = GaussianActorCritic(111, 8)
+    norm = agent.obs_normalizer
+    fast = norm.rollout(1)
+    out32 = np.empty((1, 111), np.float32)
+    x = torch.from_numpy(out32)
+    actor = agent.rollout_actor(x)
+    scaler = RewardScaler(1, 0.99, 10.0)
+    reward, done = np.array([0.5]), np.array([False])
+    pieces = {}
+    pieces["normaliser_module_us"] = 1e6 * best_time(lambda: (norm.update(obs), norm.normalize_np(obs)), number,
+                                                     repeats)
+    pieces["normaliser_rollout_us"] = 1e6 * best_time(lambda: (fast.update(obs), fast.normalize_into(obs, out32)),
+                                                      number, repeats)
+    pieces["reward_scaler_array_us"] = 1e6 * best_time(lambda: scaler(reward, done), number, repeats)
+    pieces["reward_scaler_scalar_us"] = 1e6 * best_time(lambda: scaler.scale_one(0.5, False), number, repeats)
+    agents = {"ppo": agent, "mikt_1": mikt_agent("centipede-eight", ["centipede-six"]),
+              "mikt_2": mikt_agent("centipede-eight", ["centipede-four", "centipede-six"])}
+    with torch.inference_mode():
+        for name, ag in agents.items():
+            xin = x if name == "ppo" else torch.zeros(1, ag.obs_normalizer.mean.shape[0])
+            run = ag.rollout_actor(xin)
+            pieces[f"forward_{name}_module_us"] = 1e6 * best_time(
+                lambda a=ag, i=xin: a.action_mean(i).numpy(), number, repeats)
+            pieces[f"forward_{name}_rollout_us"] = 1e6 * best_time(lambda r=run: r().numpy(), number, repeats)
+    del actor
+    return pieces
+
+
+def update_pieces(repeats: int, compiled: bool) -> dict:
+    """One minibatch step (loss, backward, clip, Adam), eager and compiled, alternated; compile time apart."""
+    setups = {"ppo_ant": ("ant", None), "mikt_1_eight": ("centipede-eight", ["centipede-six"]),
+              "mikt_2_eight": ("centipede-eight", ["centipede-four", "centipede-six"])}
+    out = {}
+    for name, (env, teachers) in setups.items():
+        trainers, batches, first = {}, {}, {}
+        for comp in (False, True) if compiled else (False,):
+            torch.manual_seed(0)
+            agent = GaussianActorCritic(111, 8) if teachers is None else mikt_agent(env, teachers)
+            config = PPOConfig(n_steps=256, epochs=1, compile_loss=comp, kl_coef=0.0 if teachers is None else 0.05)
+            trainer = PPOTrainer(agent, lambda e=env: make_env(e), config, 10**6, 0)
+            batches[comp] = trainer._values_and_targets(trainer.collect()[0])
+            t = time.perf_counter()
+            trainer.update(batches[comp])  # compiles (compiled) / warms up (eager)
+            first[comp] = time.perf_counter() - t
+            trainers[comp] = trainer
+        best = dict.fromkeys(trainers, float("inf"))
+        for _ in range(repeats):
+            for comp, trainer in trainers.items():
+                best[comp] = min(best[comp], best_time(lambda tr=trainer, b=batches[comp]: tr.update(b), 3, 1) / 4)
+        row = {"eager_us_per_minibatch": 1e6 * best[False]}
+        if compiled:
+            row["compiled_us_per_minibatch"] = 1e6 * best[True]
+            row["compile_s"] = first[True] - first[False]
+        out[name] = row
+        for trainer in trainers.values():
+            trainer.close()
+    return out
+
+
+# --- the report -------------------------------------------------------------------------------------------
+def ratios(res: dict) -> dict:
+    r: dict = {}
+    phys = 1e6 / res["physics_ant_us"]
+    r["rollout_vs_physics"] = res["in_process"]["engine"]["rollout_steps_per_sec"] / phys
+    r["ppo_vs_sb3"] = res["in_process"]["engine"]["steps_per_sec"] / res["in_process"]["sb3"]["steps_per_sec"]
+    wp = res.get("whole_process")
+    if wp:
+        r["teacher_vs_sb3_script"] = wp["sb3_ppo_script"]["wall_s"] / wp["mikt_teacher_train_ant"]["wall_s"]
+        base = wp["ppo_from_scratch_eight"]["wall_s"]
+        r["one_teacher_vs_ppo"] = wp["one_teacher_six_to_eight"]["wall_s"] / base
+        r["two_teachers_vs_ppo"] = wp["two_teachers_four_six_to_eight"]["wall_s"] / base
+    return r
+
+
+def fmt(x: float, digits: int = 0) -> str:
+    return f"{x:,.{digits}f}"
+
+
+def markdown(res: dict) -> str:
+    r, ip = res["ratios"], res["in_process"]
+    eng, sb3 = ip["engine"], ip["sb3"]
+    phys_rate = 1e6 / res["physics_ant_us"]
+    lines = [
+        "<!-- generated by benchmarks/throughput.py; do not edit by hand -->",
+        f"Measured {res['date']} with `{res['command']}` (commit {res['commit']}, {res['machine']}, Python "
+        f"{res['python']}, torch {res['torch']}, 1 thread; best of {res['repeats']} repeats, systems alternated"
+        f"{'; QUICK smoke run, not a measurement' if res['quick'] else ''}).",
+        "",
+        "| measure | this engine | reference | ratio | target |",
+        "|---|---|---|---|---|",
+        "| PPO rollout (Ant, `collect`) vs the physics-only limit (`mj_step` × 5) | "
+        f"{fmt(eng['rollout_steps_per_sec'])} steps/s | {fmt(phys_rate)} steps/s | {r['rollout_vs_physics']:.2f} | "
+        f"≥ {TARGETS['rollout_vs_physics']:.2f} |",
+        f"| PPO in process vs Stable-Baselines3 (Ant, {fmt(eng['steps'])} steps) | {fmt(eng['steps_per_sec'])} steps/s "
+        f"| {fmt(sb3['steps_per_sec'])} steps/s | {r['ppo_vs_sb3']:.2f}× | ≥ {TARGETS['ppo_vs_sb3']}× |",
+    ]
+    wp = res.get("whole_process")
+    if wp:
+        base = wp["ppo_from_scratch_eight"]["wall_s"]
+        lines += [
+            f"| whole process: `mikt teacher train ant` vs an SB3 PPO script ({fmt(res['steps_teacher'])} steps) | "
+            f"{wp['mikt_teacher_train_ant']['wall_s']:.1f} s | {wp['sb3_ppo_script']['wall_s']:.1f} s | "
+            f"{r['teacher_vs_sb3_script']:.2f}× faster | ≥ {TARGETS['teacher_vs_sb3_script']}× |",
+            f"| whole process: one-teacher transfer (six → eight) vs PPO from scratch ({fmt(res['steps_transfer'])} "
+            f"steps) | {wp['one_teacher_six_to_eight']['wall_s']:.1f} s | {base:.1f} s | "
+            f"{r['one_teacher_vs_ppo']:.2f}× the time | ≤ {TARGETS['one_teacher_vs_ppo']}× |",
+            f"| whole process: two-teacher transfer (four + six → eight) vs PPO from scratch | "
+            f"{wp['two_teachers_four_six_to_eight']['wall_s']:.1f} s | {base:.1f} s | "
+            f"{r['two_teachers_vs_ppo']:.2f}× the time | ≤ {TARGETS['two_teachers_vs_ppo']}× |",
+        ]
+        lines += ["", f"The whole-process runs are below {AUTO_MIN_STEPS:,} steps, so their update is eager (auto); "
+                  "each command's stderr names the path and its card records it."]
+    us = eng["us_per_step"]
+    lines += ["", "**Where this engine's PPO step goes** (Ant, in process, µs per env step, the engine's own timers): "
+              f"env {us['env']:.0f} (of which physics alone {res['physics_ant_us']:.0f}), inference "
+              f"{us['inference']:.0f}, rest of the rollout {us['rollout_other']:.0f}, update {us['update']:.0f} "
+              f"(eager). SB3 spends {1e6 / sb3['steps_per_sec']:.0f} µs per step in all; "
+              f"{TARGETS['ppo_vs_sb3']}× SB3 leaves {1e6 / sb3['steps_per_sec'] / TARGETS['ppo_vs_sb3']:.0f} µs.", ""]
+    lines += ["| piece (µs per call, min of repeats) | gymnasium / module path | lean / rollout path |",
+              "|---|---|---|"]
+    for env, row in res["pieces"]["env"].items():
+        lines.append(f"| {env} env step (physics alone {row['physics_us']:.0f}) | {row['step_gymnasium_us']:.0f} | "
+                     f"{row['step_lean_us']:.0f} |")
+    p = res["pieces"]["rollout"]
+    lines += [
+        f"| observation normaliser, update + normalise (111 dims) | {p['normaliser_module_us']:.1f} | "
+        f"{p['normaliser_rollout_us']:.1f} |",
+        f"| reward scaler (1 env) | {p['reward_scaler_array_us']:.1f} | {p['reward_scaler_scalar_us']:.1f} |",
+        f"| policy forward, batch of one, PPO (Ant) | {p['forward_ppo_module_us']:.1f} | "
+        f"{p['forward_ppo_rollout_us']:.1f} |",
+        f"| policy forward, batch of one, MIKT 1 teacher (eight) | {p['forward_mikt_1_module_us']:.1f} | "
+        f"{p['forward_mikt_1_rollout_us']:.1f} |",
+        f"| policy forward, batch of one, MIKT 2 teachers (eight) | {p['forward_mikt_2_module_us']:.1f} | "
+        f"{p['forward_mikt_2_rollout_us']:.1f} |",
+        "",
+        "| minibatch update step (loss, backward, clip, Adam; 64 samples) | eager µs | compiled µs | compile s |",
+        "|---|---|---|---|",
+    ]
+    labels = {"ppo_ant": "PPO, Ant", "mikt_1_eight": "MIKT 1 teacher (six → eight)",
+              "mikt_2_eight": "MIKT 2 teachers (four + six → eight)"}
+    for name, row in res["pieces"]["update"].items():
+        comp = (f"{row['compiled_us_per_minibatch']:.0f} | {row['compile_s']:.0f}" if "compiled_us_per_minibatch" in row
+                else "— | —")
+        lines.append(f"| {labels[name]} | {row['eager_us_per_minibatch']:.0f} | {comp} |")
+    upd = res["pieces"]["update"]
+    if "compiled_us_per_minibatch" in upd["ppo_ant"]:
+        def per_step(name: str, key: str) -> float:
+            return upd[name][key] * 320 / 2048  # 10 epochs × 32 minibatches per 2,048-step rollout
+
+        lines += ["", "Update per env step (320 minibatches per 2,048 steps): PPO "
+                  f"{per_step('ppo_ant', 'eager_us_per_minibatch'):.0f} µs eager, "
+                  f"{per_step('ppo_ant', 'compiled_us_per_minibatch'):.0f} µs compiled; MIKT with 2 teachers "
+                  f"{per_step('mikt_2_eight', 'eager_us_per_minibatch'):.0f} µs eager, "
+                  f"{per_step('mikt_2_eight', 'compiled_us_per_minibatch'):.0f} µs compiled. "
+                  "Runs from 500,000 steps compile by default (`--compile/--no-compile` to choose)."]
+    return "\n".join(lines) + "\n"
+
+
+def commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                              check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--env", default="ant")
-    parser.add_argument("--steps", type=int, default=20480)
-    parser.add_argument("--teacher-env", default="centipede-six", help="shape of the (untrained) MIKT teacher")
+    parser.add_argument("--quick", action="store_true", help="tiny sizes, one repeat, no compile: a smoke run")
+    parser.add_argument("--repeats", type=int, default=None, help="best of N (default 2; --quick 1)")
+    parser.add_argument("--steps", type=int, default=None, help="in-process timed steps (default 20,480)")
+    parser.add_argument("--no-whole-process", action="store_true", help="skip part 3 (the subprocess runs)")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results",
+                        help="folder for throughput.json and throughput.md")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    quick = args.quick
+    repeats = args.repeats or (1 if quick else 2)
+    steps = args.steps or (2048 if quick else 20480)
+    steps_teacher, steps_transfer = (2048, 2048) if quick else (30720, 20480)
+    number = 50 if quick else 2000
     torch.set_num_threads(1)
     warnings.filterwarnings("ignore")
-    spec = load_spec(args.env)
-
-    out: dict = {"env": args.env, "steps": args.steps, "torch_threads": torch.get_num_threads(),
-                 "machine": platform.machine(), "python": sys.version.split()[0], "torch": torch.__version__}
-    out["physics_limit_steps_per_sec"] = physics_limit(args.env)
-    teacher_spec = load_spec(args.teacher_env)
-
-    def ppo_agent():
-        torch.manual_seed(args.seed)
-        return GaussianActorCritic(spec.obs_dim, spec.act_dim)
-
-    def mikt_agent(num_teachers: int):
-        torch.manual_seed(args.seed)
-        teachers = [GaussianActorCritic(teacher_spec.obs_dim, teacher_spec.act_dim).requires_grad_(False)
-                    for _ in range(num_teachers)]
-        return MiktActorCritic(spec.obs_dim, spec.act_dim, teachers, MiktConfig(coupling_schedule="constant"))
-
-    for compiled in (False, True):
-        suffix = "_compiled" if compiled else ""
-        out["mikt_engine_ppo" + suffix] = run_engine(args.env, ppo_agent(), args.steps, args.seed,
-                                                     compile_loss=compiled)
-        for k in (1, 2, 3) if not compiled else (1,):
-            name = "mikt_engine_mikt" + ("" if k == 1 else f"_{k}_teachers") + suffix
-            out[name] = run_engine(args.env, mikt_agent(k), args.steps, args.seed, kl_coef=0.05,
-                                   compile_loss=compiled)
-    out["peak_rss_mib_before_sb3"] = peak_rss_mib()
-    try:
-        out["stable_baselines3_ppo"] = run_sb3(args.env, args.steps, args.seed)
-    except ImportError:
-        out["stable_baselines3_ppo"] = None
-    ours, ours_c = out["mikt_engine_ppo"], out["mikt_engine_ppo_compiled"]
-    sb3_rate = out["stable_baselines3_ppo"]["steps_per_sec"] if out["stable_baselines3_ppo"] else None
-
-    def update_ratio(mikt: str, ppo: str) -> float:
-        return out[mikt]["update_s_per_iteration"] / out[ppo]["update_s_per_iteration"]
-
-    out["ratios"] = {
-        "ppo_vs_sb3": ours["steps_per_sec"] / sb3_rate if sb3_rate else None,
-        "ppo_compiled_vs_sb3": ours_c["steps_per_sec"] / sb3_rate if sb3_rate else None,
-        "rollout_vs_physics_limit": ours["rollout_steps_per_sec"] / out["physics_limit_steps_per_sec"],
-        "mikt_update_vs_ppo_update": update_ratio("mikt_engine_mikt", "mikt_engine_ppo"),
-        "mikt_2_teachers_update_vs_ppo_update": update_ratio("mikt_engine_mikt_2_teachers", "mikt_engine_ppo"),
-        "mikt_3_teachers_update_vs_ppo_update": update_ratio("mikt_engine_mikt_3_teachers", "mikt_engine_ppo"),
-        "mikt_update_vs_ppo_update_compiled": update_ratio("mikt_engine_mikt_compiled", "mikt_engine_ppo_compiled"),
-        "mikt_update_flops_vs_ppo": out["mikt_engine_mikt"]["update_flops"] / ours["update_flops"],
-        "compiled_vs_eager_ppo_update": update_ratio("mikt_engine_ppo_compiled", "mikt_engine_ppo"),
-        "compiled_vs_eager_mikt_update": update_ratio("mikt_engine_mikt_compiled", "mikt_engine_mikt"),
-        "mikt_vs_ppo_end_to_end": out["mikt_engine_mikt"]["steps_per_sec"] / ours["steps_per_sec"],
-        "mikt_vs_ppo_end_to_end_compiled": out["mikt_engine_mikt_compiled"]["steps_per_sec"]
-        / ours_c["steps_per_sec"],
-    }
-    out["peak_rss_mib"] = peak_rss_mib()
-
-    sb3 = out["stable_baselines3_ppo"]
-    split = ours["us_per_step"]
-    print(f"env {args.env}, {args.steps} steps each, 1 env, 1 thread")
-    print(f"physics-only limit (mj_step x frame_skip): {out['physics_limit_steps_per_sec']:8.0f} steps/s")
-    print(f"this engine, PPO:                          {ours['steps_per_sec']:8.0f} steps/s "
-          f"(rollout phase {ours['rollout_steps_per_sec']:.0f} steps/s)")
-    print(f"  per env step: env {split['env']:.0f} us, inference {split['inference']:.0f} us, "
-          f"update {split['update']:.0f} us")
-    rows = {"MIKT (1 teacher)": "mikt_engine_mikt", "MIKT (2 teachers)": "mikt_engine_mikt_2_teachers",
-            "MIKT (3 teachers)": "mikt_engine_mikt_3_teachers", "PPO, --compile": "mikt_engine_ppo_compiled",
-            "MIKT (1 teacher), --compile": "mikt_engine_mikt_compiled"}
-    for label, name in rows.items():
-        print(f"this engine, {label + ':':30s} {out[name]['steps_per_sec']:8.0f} steps/s")
-    if sb3:
-        print(f"Stable-Baselines3 PPO:                     {sb3['steps_per_sec']:8.0f} steps/s")
-    for key, value in out["ratios"].items():
-        if value is not None:
-            print(f"{key:40s} {value:.2f}")
-    print(f"RSS after first / last iteration: {ours['rss_first_iteration_mib']:.0f} / "
-          f"{ours['rss_last_iteration_mib']:.0f} MiB; peak before SB3 {out['peak_rss_mib_before_sb3']:.0f} MiB, "
-          f"overall {out['peak_rss_mib']:.0f} MiB")
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(out, indent=2))
+    if str(ROOT / "benchmarks") not in sys.path:
+        sys.path.insert(0, str(ROOT / "benchmarks"))
+    command = shlex.join(["python", "benchmarks/throughput.py", *(argv if argv is not None else sys.argv[1:])])
+    res: dict = {"date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"), "command": command,
+                 "commit": commit(), "machine": f"{platform.machine()}, {os.cpu_count()} CPUs",
+                 "python": sys.version.split()[0], "torch": torch.__version__, "repeats": repeats, "quick": quick,
+                 "steps_teacher": steps_teacher, "steps_transfer": steps_transfer}
+    t_start = time.perf_counter()
+    res["physics_ant_us"] = physics_us("ant", number * 2, repeats + 2)
+    runs: dict[str, list[dict]] = {"engine": [], "sb3": []}
+    for _ in range(repeats):
+        runs["engine"].append(engine_run(steps, args.seed))
+        runs["sb3"].append(sb3_run(steps, args.seed))
+    res["in_process"] = {k: min(v, key=lambda r: r["wall_s"]) for k, v in runs.items()}
+    res["pieces"] = {"env": env_pieces(number, repeats + 2), "rollout": rollout_pieces(number, repeats + 2),
+                     "update": update_pieces(repeats * 3, compiled=not quick)}
+    if not args.no_whole_process:
+        with tempfile.TemporaryDirectory() as registry:
+            shutil.copytree(ROOT / "registry" / "teachers", Path(registry) / "teachers")
+            env = {**os.environ, "MIKT_REGISTRY": registry,
+                   "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])}
+            res["whole_process"] = whole_process(process_commands(steps_teacher, steps_transfer), repeats, env)
+    res["ratios"] = ratios(res)
+    res["wall_s"] = time.perf_counter() - t_start
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "throughput.json").write_text(json.dumps(res, indent=1) + "\n")
+    page = markdown(res)
+    (args.out / "throughput.md").write_text(page)
+    print(page)
+    print(f"({res['wall_s']:.0f} s; wrote {args.out / 'throughput.json'} and {args.out / 'throughput.md'})")
+    return res
 
 
 if __name__ == "__main__":

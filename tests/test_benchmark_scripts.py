@@ -215,6 +215,27 @@ def test_every_committed_grid_loads():
         load_grid(path)
 
 
+def test_throughput_quick_run_writes_its_tables_and_figures(tmp_path):
+    throughput = load_script("throughput")
+    res = throughput.main(["--quick", "--no-whole-process", "--out", str(tmp_path)])
+    saved = json.loads((tmp_path / "throughput.json").read_text())
+    assert saved["quick"] and saved["in_process"]["engine"]["lean_env"]
+    assert set(saved["ratios"]) == {"rollout_vs_physics", "ppo_vs_sb3"}
+    assert all(v > 0 for v in saved["ratios"].values())
+    page = (tmp_path / "throughput.md").read_text()
+    assert saved["date"] in page and "python benchmarks/throughput.py --quick" in page
+    assert "centipede-eight env step" in page and "MIKT 2 teachers" in page
+    # the whole-process part: the report's ratios from timed commands (cheap stand-ins here)
+    timed = throughput.whole_process({"a": [sys.executable, "-c", "pass"]}, 2, env=None)
+    assert timed["a"]["wall_s"] == min(timed["a"]["all_s"]) and len(timed["a"]["all_s"]) == 2
+    names = throughput.process_commands(30720, 20480)
+    res["whole_process"] = {name: {"command": " ".join(c), "wall_s": 10.0 + i} for i, (name, c) in
+                            enumerate(names.items())}
+    ratios = throughput.ratios(res)
+    assert ratios["teacher_vs_sb3_script"] == 11.0 / 10.0 and ratios["two_teachers_vs_ppo"] == 14.0 / 12.0
+    assert "two-teacher transfer" in throughput.markdown({**res, "ratios": ratios})
+
+
 def test_aggregate_report_normalises_by_random_and_the_baseline_per_target(registry, tmp_path):
     from miktcli.studies.grid import load_grid
 

@@ -80,3 +80,36 @@ def test_past_the_recompile_limit_is_an_error_not_a_silent_eager_fallback(monkey
     torch._dynamo.config.recompile_limit = 1  # `compiled` raised it for the new trainer; lower it again
     with pytest.raises(MiktError, match="compile_loss: torch.compile failed"):
         next(second.run())
+
+
+def test_auto_compiles_only_runs_long_enough_and_only_with_a_compiler(monkeypatch):
+    from miktcli import compile_choice
+    from miktcli.compile_choice import AUTO_MIN_STEPS, decide_compile
+
+    assert decide_compile(True, 2048) == (True, "on: asked (--compile)")
+    assert decide_compile(False, 2_000_000) == (False, "off: asked (--no-compile)")
+    on, why = decide_compile(None, AUTO_MIN_STEPS - 1)
+    assert not on and why.startswith("auto: off") and "below" in why
+    monkeypatch.setattr(compile_choice, "cxx_compiler", lambda: "/usr/bin/g++")
+    assert decide_compile(None, 2_000_000) == (True, "auto: on, 2,000,000 steps (compiling pays from 500,000)")
+    monkeypatch.setattr(compile_choice, "cxx_compiler", lambda: None)
+    on, why = decide_compile(None, 2_000_000)
+    assert not on and "no C++ compiler found" in why  # off, and the card says why
+
+
+def test_the_card_records_the_choice_and_its_reason(registry):
+    from typer.testing import CliRunner
+
+    from miktcli.cli.app import app
+    from miktcli.registry.runs import open_run
+
+    result = CliRunner().invoke(app, ["teacher", "train", "hopper", "--steps", "2048", "--name", "h"])
+    assert result.exit_code == 0, result.output
+    assert "update: eager (auto: off, 2,048 steps is below 500,000" in result.output
+    ppo = open_run(registry, "run1").card.config.ppo
+    assert ppo.compile_loss is False and ppo.compile_reason.startswith("auto: off")
+    result = CliRunner().invoke(app, ["transfer", "--from", "h", "--to", "centipede-four", "--steps", "2048",
+                                      "--no-compile", "--eval-episodes", "1"])
+    assert result.exit_code == 0, result.output
+    ppo = open_run(registry, "run2").card.config.ppo
+    assert ppo.compile_loss is False and ppo.compile_reason == "off: asked (--no-compile)"

@@ -142,6 +142,33 @@ def test_mlpp_copies_the_middle_stack():
     assert all(p.requires_grad for p in student.parameters())
 
 
+@pytest.mark.parametrize("teachers", [1, 2, 3])
+@pytest.mark.parametrize("lateral", ["identity", "projection"])
+@pytest.mark.parametrize("mixing", ["per-teacher", "shared"])
+def test_the_rollout_forward_gives_the_same_bits_as_action_mean(teachers, lateral, mixing):
+    torch.manual_seed(teachers)
+    dims = [(97, 10), (139, 16), (11, 3)][:teachers]
+    agent = MiktActorCritic(181, 22, [frozen_teacher(*d) for d in dims],
+                            MiktConfig(lateral=lateral, mixing=mixing, rl_encoder_grad=teachers != 2))
+    with torch.no_grad():  # mixing weights away from their init, so every term counts
+        agent.mix_logits_pi.normal_()
+    x = torch.empty(1, 181)
+    for active in (True, False):
+        agent.teacher_active = active
+        actor = agent.rollout_actor(x)
+        with torch.inference_mode():
+            for seed in range(20):
+                x.copy_(torch.randn(1, 181, generator=torch.Generator().manual_seed(seed)) * 2)
+                assert torch.equal(actor(), agent.action_mean(x))
+
+
+def test_mean_and_value_equal_evaluate_actions(agent):
+    obs = torch.randn(32, 139)
+    mean, value, losses = agent.evaluate_actions(obs)
+    assert losses  # the full pass also computes the extra terms; mean_and_value skips them
+    assert all(torch.equal(a, b) for a, b in zip(agent.mean_and_value(obs), (mean, value), strict=True))
+
+
 # --- several teachers: the two mixing forms --------------------------------------------------------------
 
 def two_teacher_agent(mixing, lateral="identity", **options):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 from torch import nn
@@ -45,6 +46,18 @@ class ActorCritic(nn.Module):
     def evaluate_actions(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor]]:
         return self.action_mean(obs), self.value(obs), {}
 
+    def mean_and_value(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """`evaluate_actions(obs)`'s mean and value without its extra loss terms (the pass over the whole
+        rollout after it, which needs no losses); the same numbers."""
+        mean, value, _ = self.evaluate_actions(obs)
+        return mean, value
+
+    def rollout_actor(self, obs: torch.Tensor) -> Callable[[], torch.Tensor]:
+        """A function computing `action_mean(obs)` for the rollout's fixed input tensor `obs` (refilled in
+        place each step), called under torch.inference_mode. A module may return one that reuses buffers; it
+        must give the same bits as `action_mean`."""
+        return lambda: self.action_mean(obs)
+
     def set_progress(self, fraction: float) -> None:
         """Called before each iteration with the fraction of training done (for schedules)."""
 
@@ -73,6 +86,9 @@ class GaussianActorCritic(ActorCritic):
 
     def action_mean(self, obs: torch.Tensor) -> torch.Tensor:
         return self.pi(obs)
+
+    def rollout_actor(self, obs: torch.Tensor) -> Callable[[], torch.Tensor]:
+        return self.pi.rollout_forward(obs)
 
     def value(self, obs: torch.Tensor) -> torch.Tensor:
         return self.vf(obs).squeeze(-1)

@@ -8,6 +8,7 @@ is recorded with each checkpoint.
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -60,10 +61,15 @@ class PPOConfig(BaseModel):
         False, description="clip actions to the action space before env.step; off (the authors' ppo2): the raw "
         "Gaussian sample reaches the env, MuJoCo clamps ctrl itself and the control cost sees the raw action")
     log_std_init: float = 0.0
+    lean_env: bool = Field(
+        True, description="step this package's own env families (centipede, Ant-v4, Hopper-v5) straight over "
+        "MuJoCo's arrays (envs/lean.py), bit-identical to the gymnasium env; off: every step through gymnasium")
     compile_loss: bool = Field(
         False, description="run the minibatch loss and its gradient through torch.compile: the same maths to "
         "float rounding, faster updates on a CPU (benchmarks/throughput.py), a compile of ~30 s at the start "
         "and after a resume; needs a C++ compiler")
+    compile_reason: str = Field("", description="why compile_loss is on or off: asked (--compile, --no-compile) "
+                                "or decided by auto from the run's size (see compile_choice.py)")
 
     @property
     def batch_size(self) -> int:
@@ -104,6 +110,19 @@ class RewardScaler:
         self.returns[dones] = 0.0
         return np.clip(rewards / np.sqrt(self.var + 1e-8), -self.clip, self.clip)
 
+    def scale_one(self, reward: float, done: bool) -> float:
+        """`self(...)` for one env, in Python floats: the same IEEE operations in the same order as the array
+        path's (update_moments' one-sample branch), so the same bits, without ~8 µs of small-array numpy."""
+        ret = float(self.returns[0]) * self.gamma + reward
+        mean, var, count = float(self.mean[0]), float(self.var[0]), self.count
+        total = count + 1.0
+        delta = ret - mean
+        mean += delta / total
+        var = (var * count + delta * (ret - mean)) / total
+        self.mean[0], self.var[0], self.count = mean, var, total
+        self.returns[0] = 0.0 if done else ret
+        return min(max(reward / math.sqrt(var + 1e-8), -self.clip), self.clip)
+
     def state(self) -> dict[str, torch.Tensor]:
         return {
             "returns": torch.from_numpy(self.returns.copy()),
@@ -113,7 +132,6 @@ class RewardScaler:
     def load(self, state: dict[str, torch.Tensor]) -> None:
         self.returns = state["returns"].numpy().copy()
         self.mean[0], self.var[0], self.count = (float(v) for v in state["moments"])
-
 
 def compute_gae(
     rewards: np.ndarray, values: np.ndarray, next_values: np.ndarray, terminated: np.ndarray,
@@ -201,7 +219,7 @@ class PPOTrainer:
         self.iteration = 0
         self.global_step = 0
         self.envs = SyncEnvs([make_env() for _ in range(config.num_envs)], seed,
-                             clip_actions=config.clip_actions_for_env)
+                             clip_actions=config.clip_actions_for_env, lean=config.lean_env)
         self.rng = np.random.default_rng(seed)
         self.torch_gen = torch.Generator().manual_seed(seed)
         self.reward_scaler = RewardScaler(config.num_envs, config.gamma, config.reward_clip)
@@ -232,29 +250,41 @@ class PPOTrainer:
         std = np.exp(agent.log_std.detach().numpy())
         noise = self.rng.standard_normal((T, N, act_dim)).astype(np.float32) * std
         normalizer = agent.obs_normalizer
+        # The per-step pieces over buffers made once per rollout (the same bits as the module's own paths).
+        fast_norm = normalizer.rollout(N)
+        obs_in = np.empty((N, obs_dim), np.float32)
+        actor = agent.rollout_actor(torch.from_numpy(obs_in))
+        scale_one = self.reward_scaler.scale_one if cfg.reward_scaling and N == 1 else None
         t_env = t_inf = 0.0
         finished: list[tuple[float, int]] = []
         obs_raw = envs.obs
         warnings_before = mujoco_warning_count()
+        clock = time.perf_counter
         # inference_mode, not no_grad: nothing made here reaches autograd (it all goes to numpy buffers), and
         # it skips view and version tracking, a measurable share of a step this small.
         with torch.inference_mode():
             for t in range(T):
-                t0 = time.perf_counter()
-                normalizer.update(obs_raw)
-                obs = normalizer.normalize_np(obs_raw)
-                mean = agent.action_mean(torch.from_numpy(obs)).numpy()
-                actions = mean + noise[t]
-                ro.obs[t], ro.actions[t] = obs, actions
-                t1 = time.perf_counter()
+                t0 = clock()
+                fast_norm.update(obs_raw)
+                fast_norm.normalize_into(obs_raw, obs_in)
+                actions = np.add(actor().numpy(), noise[t], out=ro.actions[t])
+                ro.obs[t] = obs_in
+                t1 = clock()
                 step = envs.step(actions)
-                t_env += time.perf_counter() - t1
-                dones = step.terminated | step.truncated
-                ro.rewards[t] = self.reward_scaler(step.rewards, dones) if cfg.reward_scaling else step.rewards
-                ro.terminated[t], ro.dones[t] = step.terminated, dones
-                for i, final in step.final_obs.items():
-                    ro.final_obs[(t, i)] = normalizer.normalize_np(final[None])[0]
-                finished += step.finished
+                t2 = clock()
+                t_env += t2 - t1
+                if step.finished:
+                    dones = step.terminated | step.truncated
+                    ro.terminated[t], ro.dones[t] = step.terminated, dones
+                    for i, final in step.final_obs.items():
+                        ro.final_obs[(t, i)] = normalizer.normalize_np(final[None])[0]
+                    finished += step.finished
+                else:
+                    dones = step.terminated  # all False: nothing ended (the rows are zeros already)
+                if scale_one is not None:
+                    ro.rewards[t, 0] = scale_one(float(step.rewards[0]), bool(dones[0]))
+                else:
+                    ro.rewards[t] = self.reward_scaler(step.rewards, dones) if cfg.reward_scaling else step.rewards
                 obs_raw = step.obs
                 t_inf += t1 - t0
         ro.last_obs = normalizer.normalize_np(obs_raw)
@@ -278,7 +308,7 @@ class PPOTrainer:
         obs = torch.from_numpy(ro.obs.reshape(T * N, -1))
         with torch.no_grad():
             # One batched pass after the rollout: the network did not change during it.
-            mean, values, _ = agent.evaluate_actions(obs)
+            mean, values = agent.mean_and_value(obs)
             values = values.numpy().reshape(T, N).astype(np.float64)
             last_values = agent.value(torch.from_numpy(ro.last_obs)).numpy().astype(np.float64)
             next_values = np.concatenate([values[1:], last_values[None]], axis=0)

@@ -23,9 +23,11 @@ StepsOption = Annotated[int, typer.Option("--steps", min=1, max=limits.MAX_STEPS
                                           help="Environment steps (the paper: 2M).")]
 NumEnvsOption = Annotated[int, typer.Option("--num-envs", min=1, max=limits.MAX_NUM_ENVS,
                                             help="Synchronous environments (the paper: 1).")]
-CompileOption = Annotated[bool, typer.Option(
-    "--compile", help="Compile the PPO loss with torch.compile: faster updates, ~30 s to compile; needs a C++ "
-    "compiler. Recorded in the run.")]
+CompileOption = Annotated[bool | None, typer.Option(
+    "--compile/--no-compile", show_default=False,
+    help="Compile the PPO update with torch.compile (the same maths to float rounding; faster updates, ~20-30 s "
+    "to compile; needs a C++ compiler). Default: auto, on from 500,000 steps when a compiler is found. The "
+    "choice and its reason are recorded in the run.")]
 DEFAULT_REGISTRY = Path("registry")
 
 
@@ -89,3 +91,12 @@ def parse_hidden(text: str) -> list[int]:
     if not sizes or any(s <= 0 for s in sizes):
         raise MiktError(f"--hidden '{text}': expected positive layer sizes such as 64,64")
     return sizes
+
+
+def note_compile(run) -> None:
+    """Say on stderr which update runs (compiled or eager) and why, as the card records it."""
+    from miktcli.cli.console import err
+
+    ppo = run.card.config.ppo
+    if ppo.compile_reason:
+        err.print(f"update: {'compiled' if ppo.compile_loss else 'eager'} ({ppo.compile_reason})")

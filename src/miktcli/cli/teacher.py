@@ -18,6 +18,7 @@ from miktcli.cli.common import (
     SeedOption,
     StepsOption,
     command_line,
+    note_compile,
     note_rounding,
     parse_hidden,
     refuse_options_with_resume,
@@ -43,7 +44,7 @@ def train(
     seed: SeedOption = 0,
     name: str = typer.Option(None, "--name", help="Teacher name in the registry (default: the env's name)."),
     num_envs: NumEnvsOption = 1,
-    compile_loss: CompileOption = False,
+    compile_loss: CompileOption = None,
     hidden: str = typer.Option("64,64", "--hidden", help="Hidden sizes of policy and value MLPs."),
     resume: str = typer.Option(None, "--resume", help="Continue an interrupted teacher run, e.g. run3."),
     registry: RegistryOption = DEFAULT_REGISTRY,
@@ -64,6 +65,7 @@ def train(
                             hidden=parse_hidden(hidden), command=command_line(), compile_loss=compile_loss)
         note_rounding(steps, run.card.total_steps)
     err.print(f"{run.id}: teacher on {run.card.env}, {run.card.total_steps} steps, seed {run.card.seed} → {run.path}")
+    note_compile(run)
     try:
         with training_progress(run.card.total_steps, run.card.steps_done, run.id) as show:
             card = run_to_end(train_teacher(run, registry), show)

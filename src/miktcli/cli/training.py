@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from miktcli.cli.common import note_compile
 from miktcli.cli.console import err
 from miktcli.cli.progress import training_progress
 from miktcli.errors import MiktError
@@ -18,6 +19,7 @@ def train_with_progress(run, registry: Path, eval_episodes: int) -> dict:
     sources = ", ".join(t.ref for t in run.card.teachers) or "scratch"
     err.print(f"{run.id}: {run.card.method} {sources} → {run.card.env}, {run.card.total_steps} steps, "
               f"seed {run.card.seed} → {run.path}")
+    note_compile(run)
     with training_progress(run.card.total_steps, run.card.steps_done, run.id) as show:
         return run_to_end(train_transfer(run, registry, eval_episodes), show)
 

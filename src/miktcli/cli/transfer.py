@@ -74,7 +74,7 @@ def transfer(
         None, "--encoder-width", help="Optional check: must equal each teacher's state dim (read from its card)."),
     hidden: str = typer.Option(None, "--hidden", help="Optional check: must equal the teachers' hidden sizes."),
     num_envs: NumEnvsOption = 1,
-    compile_loss: CompileOption = False,
+    compile_loss: CompileOption = None,
     eval_episodes: int = typer.Option(10, "--eval-episodes", min=1, max=limits.MAX_EPISODES,
                                       help="Episodes for the final evaluation (recorded; kept on --resume)."),
     resume: str = typer.Option(None, "--resume", help="Continue an interrupted transfer run."),

@@ -121,6 +121,10 @@ class CentipedeEnv(gym.Env):
         info = {"reward_forward": forward, "reward_ctrl": -ctrl_cost, "reward_contact": -contact_cost}
         return obs, reward, terminated, truncated, info
 
+    def lean_stepper(self) -> CentipedeStepper:
+        """This env's step over MjData views, bit-identical to `step` (see envs/lean.py)."""
+        return CentipedeStepper(self)
+
     def render(self):
         if self._renderer is None:
             self._renderer = mujoco.Renderer(self.model, self._height, self._width)
@@ -137,3 +141,40 @@ class CentipedeEnv(gym.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+class CentipedeStepper:
+    """`CentipedeEnv.step` over views of MjData made once (the same operations, order and dtypes), without
+    the time limit (the caller counts it) and the info dict."""
+
+    def __init__(self, env: CentipedeEnv):
+        self.env, self.model, self.data = env, env.model, env.data
+        self.max_episode_steps = env.max_episode_steps
+        d = env.data
+        self.front_x = d.xpos[env._front_body, 0:1]
+        self.warnings = d.warning.number  # a live view
+        self.divergence = np.array([int(w) for w in _DIVERGENCE_WARNINGS])
+        self.cfrc_ext, self.contact = d.cfrc_ext, np.empty_like(d.cfrc_ext)
+        self.qpos_tail, self.qvel = d.qpos[2:], d.qvel
+        self.ctrl_w, self.contact_w = env._ctrl_cost_weight, env._contact_cost_weight
+        self.nq, self.nv = self.qpos_tail.shape[0], self.qvel.shape[0]
+
+    def step(self, action: np.ndarray, obs_out: np.ndarray) -> tuple[float, bool]:
+        m, d = self.model, self.data
+        action = np.asarray(action, dtype=np.float64)
+        x_before = float(self.front_x[0])
+        diverged_before = int(self.warnings[self.divergence].sum())
+        d.ctrl[:] = action
+        mujoco.mj_step(m, d, nstep=FRAME_SKIP)
+        mujoco.mj_rnePostConstraint(m, d)
+        forward = (float(self.front_x[0]) - x_before) / self.env.dt
+        ctrl_cost = self.ctrl_w * float(np.square(action).sum())
+        contact = np.clip(self.cfrc_ext, -1.0, 1.0, out=self.contact)
+        contact_cost = self.contact_w * float(np.square(contact).sum())
+        reward = forward - ctrl_cost - contact_cost + 1.0
+        terminated = int(self.warnings[self.divergence].sum()) > diverged_before or not self.env.is_healthy()
+        a, b = self.nq, self.nq + self.nv
+        obs_out[:a] = self.qpos_tail
+        obs_out[a:b] = self.qvel
+        obs_out[b:] = contact.reshape(-1)
+        return reward, terminated

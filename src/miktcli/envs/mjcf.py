@@ -237,6 +237,16 @@ class MjcfEnv(gym.Env):
         return self._obs(), {"x_position": self._forward_position()}
 
     def step(self, action):
+        after, velocity, forward, survive, ctrl_cost, contact_cost, reward, terminated = self._advance(action)
+        self._elapsed += 1
+        truncated = self._elapsed >= self.max_episode_steps and not terminated
+        info = {"x_position": after, "x_velocity": velocity, "reward_forward": forward, "reward_ctrl": -ctrl_cost,
+                "reward_contact": -contact_cost, "reward_survive": survive}
+        return self._obs(), float(reward), terminated, truncated, info
+
+    def _advance(self, action) -> tuple[float, float, float, float, float, float, float, bool]:
+        """One step's physics and terms: (x after, velocity, forward, survive, ctrl cost, contact cost, reward,
+        terminated). Shared by `step` and the lean stepper, so both compute the same bits."""
         s, m, d = self.spec_, self.model, self.data
         action = np.asarray(action)  # the cost is computed in the action's own dtype, as gymnasium does
         before = self._forward_position()
@@ -255,11 +265,11 @@ class MjcfEnv(gym.Env):
             if s.contact_cost_weight else 0.0
         reward = (forward + survive) - (ctrl_cost + contact_cost)  # gymnasium's rounding order
         terminated = self._divergence_count() > diverged_before or (not healthy and s.terminate_when_unhealthy)
-        self._elapsed += 1
-        truncated = self._elapsed >= self.max_episode_steps and not terminated
-        info = {"x_position": after, "x_velocity": velocity, "reward_forward": forward, "reward_ctrl": -ctrl_cost,
-                "reward_contact": -contact_cost, "reward_survive": survive}
-        return self._obs(), float(reward), terminated, truncated, info
+        return after, velocity, forward, survive, ctrl_cost, contact_cost, reward, terminated
+
+    def lean_stepper(self) -> MjcfStepper:
+        """This env's step without gymnasium's wrappers and the info dict (see envs/lean.py)."""
+        return MjcfStepper(self)
 
     def render(self):
         if self._renderer is None:
@@ -287,3 +297,17 @@ class MjcfEnv(gym.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+class MjcfStepper:
+    """`MjcfEnv.step` for SyncEnvs' lean path: the same `_advance` (so the same bits), the observation written
+    in place, no info dict; the caller counts the time limit (`max_episode_steps`)."""
+
+    def __init__(self, env: MjcfEnv):
+        self.env = env
+        self.max_episode_steps = env.max_episode_steps
+
+    def step(self, action: np.ndarray, obs_out: np.ndarray) -> tuple[float, bool]:
+        *_, reward, terminated = self.env._advance(action)
+        obs_out[:] = self.env._obs()
+        return float(reward), terminated

@@ -3,6 +3,10 @@
 On the step where an episode ends, the env is reset at once: the returned observation is the new
 episode's first one, and the last observation of the finished episode is handed back separately so a
 truncated episode can be bootstrapped. No dummy transition ever reaches the rollout buffer.
+
+Where every env has a lean stepper (envs/lean.py: this package's own families, gymnasium's Ant-v4 and
+Hopper-v5) the steps go through it, bit-identical to `env.step`, and this class counts the time limit;
+resets always go through the env itself.
 """
 
 from __future__ import annotations
@@ -15,12 +19,14 @@ import mujoco
 import numpy as np
 
 from miktcli.envs.failures import env_failure
+from miktcli.envs.lean import LeanStepper, lean_stepper
 from miktcli.errors import MiktError
 
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 # Derived quantities that reward code reads *before* the next mj_step (Ant's and the centipede's "x before").
 # After mj_step they describe the last sub-step's start, not the integrated state, so a resumed env gets the
 # saved values back rather than fresh ones from mj_forward: that is what makes a resume bit-exact.
+_NO_LIMIT = 2**62  # an env without a time limit never truncates
 _STALE_DERIVED = ("xpos", "xquat", "xipos", "geom_xpos", "subtree_com")
 
 
@@ -49,7 +55,10 @@ class StepResult:
 
 
 class SyncEnvs:
-    def __init__(self, envs: list[gym.Env], seed: int, clip_actions: bool = False):
+    """`lean=False` steps every env through gymnasium (the reference path; also taken wherever an env has
+    no lean stepper). `self.lean` says which path runs."""
+
+    def __init__(self, envs: list[gym.Env], seed: int, clip_actions: bool = False, lean: bool = True):
         self.envs = envs
         self.clip_actions = clip_actions
         self.num = len(envs)
@@ -58,6 +67,10 @@ class SyncEnvs:
         self._returns = np.zeros(self.num)
         self._lengths = np.zeros(self.num, dtype=np.int64)
         self._obs = np.stack([self._reset(env, seed=seed + i) for i, env in enumerate(envs)])
+        found = [lean_stepper(env) for env in envs] if lean else []
+        self.lean = bool(found) and all(f is not None for f in found)
+        self._steppers: list[LeanStepper] = [f[0] for f in found] if self.lean else []  # type: ignore[index]
+        self._limits = [_NO_LIMIT if f[1] is None else int(f[1]) for f in found] if self.lean else []  # type: ignore[index]
 
     @staticmethod
     def _reset(env: gym.Env, **kwargs: Any) -> np.ndarray:
@@ -76,6 +89,8 @@ class SyncEnvs:
         # The buffer always keeps the raw sample; the env gets it raw too unless asked (see PPOConfig).
         if self.clip_actions:
             actions = np.clip(actions, self.action_low, self.action_high)
+        if self.lean:
+            return self._step_lean(actions)
         rewards = np.empty(self.num)
         terminated = np.zeros(self.num, dtype=bool)
         truncated = np.zeros(self.num, dtype=bool)
@@ -103,6 +118,34 @@ class SyncEnvs:
         result.obs = next_obs
         return result
 
+    def _step_lean(self, actions: np.ndarray) -> StepResult:
+        rewards = np.empty(self.num)
+        terminated = np.zeros(self.num, dtype=bool)
+        truncated = np.zeros(self.num, dtype=bool)
+        next_obs = np.empty_like(self._obs)
+        result = StepResult(next_obs, rewards, terminated, truncated)
+        returns, lengths = self._returns, self._lengths
+        i = 0
+        try:  # one try around the loop (free until it raises); i names the env that failed
+            for i, stepper in enumerate(self._steppers):
+                reward, term = stepper.step(actions[i], next_obs[i])
+                rewards[i] = reward
+                returns[i] += reward
+                lengths[i] += 1
+                if term or lengths[i] >= self._limits[i]:
+                    terminated[i], truncated[i] = term, not term
+                    if not term:
+                        result.final_obs[i] = next_obs[i].copy()
+                    result.finished.append((float(returns[i]), int(lengths[i])))
+                    returns[i], lengths[i] = 0.0, 0
+                    next_obs[i] = self._reset(self.envs[i])
+        except MiktError:
+            raise
+        except Exception as err:  # noqa: BLE001 - an env's own code: name its spec, not a mikt bug
+            raise env_failure(self.envs[i], err, "step") from err
+        self._obs = next_obs
+        return result
+
     # --- state for an exact resume ---------------------------------------------------------------------
     def state(self) -> tuple[dict[str, np.ndarray], list[dict[str, Any]]]:
         """Everything the next step depends on: arrays (for safetensors) and small JSON facts."""
@@ -117,8 +160,9 @@ class SyncEnvs:
             for name in _STALE_DERIVED:
                 arrays[f"{name}.{i}"] = getattr(u.data, name).copy()
             counter = _time_limit(env)
-            facts.append({"rng": u.np_random.bit_generator.state,
-                          "elapsed": int(getattr(counter, _elapsed_attr(counter)) or 0)})
+            # On the lean path the env's own counter does not run; the episode length is the elapsed count.
+            elapsed = self._lengths[i] if self.lean else getattr(counter, _elapsed_attr(counter)) or 0
+            facts.append({"rng": u.np_random.bit_generator.state, "elapsed": int(elapsed)})
         return arrays, facts
 
     def load_state(self, arrays: dict[str, np.ndarray], facts: list[dict[str, Any]]) -> None:

@@ -15,6 +15,7 @@ Algorithm 1's gradient: θ, ψ ← L_PPO; φ ← L_PPO + L_MI; ω ← L_MI; p �
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Literal
 
 import torch
@@ -207,10 +208,72 @@ class MiktActorCritic(ActorCritic):
             return self.pi(obs)
         return self._policy(obs, self.embeddings(obs), torch.softmax(self.mix_logits_pi, -1))
 
+    def rollout_actor(self, obs: torch.Tensor) -> Callable[[], torch.Tensor]:
+        """`action_mean(obs)` for the rollout's fixed input, op for op as `embeddings`, `_teacher_z` and
+        `_mixed` compute it (the same kernels, so the same bits; tests/test_mikt.py checks), into buffers made
+        once per rollout. The mixing weights are taken now: they only change in the update. Per step this
+        saves the allocations and module calls of ~35 small ops (the MIKT rollout forward was 4-8× PPO's)."""
+        if not self.teacher_active:
+            return self.pi.rollout_forward(obs)
+        n = obs.shape[0]
+        embed = [enc.rollout_forward(obs) for enc in self.encoders]
+        with torch.no_grad():
+            weights = torch.softmax(self.mix_logits_pi, -1)
+        teachers = [_RolloutPreactivations(t.pi, n) for t in self.teachers]
+        lateral = ([[u.weight.detach().t() for u in us] for us in self.lateral_pi]
+                   if self.lateral_pi is not None else None)
+        student = [(w.detach().t(), b.detach()) for w, b in self.pi.layer_params]
+        head_w, head_b = self.pi.head_params[0].detach().t(), self.pi.head_params[1].detach()
+        width = [w.shape[1] for w, _ in student]
+        lin, mixed = [torch.empty(n, h) for h in width], [torch.empty(n, h) for h in width]
+        proj = [[torch.empty(n, h) for h in width] for _ in teachers]
+        acc, term = [torch.empty(n, h) for h in width], [torch.empty(n, h) for h in width]
+        zeros = [torch.zeros(n, h) for h in width]
+        out = torch.empty(n, head_w.shape[1])
+        # mixing = "shared": one source per layer, Σ_k z_k (as _teacher_z sums them), then mixed as one teacher
+        shared = self.config.mixing == "shared" and len(teachers) > 1
+        summed = [torch.empty(n, h) for h in width] if shared else []
+        k_teachers = 1 if shared else len(teachers)
+        p_student = weights[:, 0].unbind()
+        w_rows = [row.unbind() for row in weights.unbind()]
+
+        def run() -> torch.Tensor:
+            tz = [t(e()) for t, e in zip(teachers, embed, strict=True)]
+            if lateral is not None:
+                tz = [[torch.mm(z, u_t, out=buf) for z, u_t, buf in zip(zs, us, bufs, strict=True)]
+                      for zs, us, bufs in zip(tz, lateral, proj, strict=True)]
+            if shared:  # sum() starts at 0, as zeros + z_0 does (see below)
+                tz = [[_sum_into(buf, zero, layer) for buf, zero, layer in zip(summed, zeros, zip(*tz, strict=True),
+                                                                              strict=True)]]
+            x = obs
+            for j, (w_t, b) in enumerate(student):
+                z = torch.addmm(b, x, w_t, out=lin[j])
+                if k_teachers == 1:
+                    x = torch.tanh_(torch.lerp(tz[0][j], z, p_student[j], out=mixed[j]))
+                    continue
+                w = w_rows[j]
+                # sum() starts at 0: 0 + a is a, except that -0.0 becomes +0.0; a tensor of zeros does the
+                # same (and costs less than adding a Python scalar)
+                s = torch.add(zeros[j], torch.mul(tz[0][j], w[1], out=term[j]), out=acc[j])
+                for k in range(1, k_teachers):
+                    s.add_(torch.mul(tz[k][j], w[k + 1], out=term[j]))
+                x = torch.tanh_(torch.add(torch.mul(z, w[0], out=mixed[j]), s, out=mixed[j]))
+            return torch.addmm(head_b, x, head_w, out=out)
+
+        return run
+
     def value(self, obs: torch.Tensor) -> torch.Tensor:
         if not self.teacher_active:
             return self.vf(obs).squeeze(-1)
         return self._value(obs, self.embeddings(obs), torch.softmax(self.mix_logits_vf, -1))
+
+    def mean_and_value(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        # evaluate_actions's mean and value, the encoders run once, no L_MI or coupling (nothing reads them)
+        if not self.teacher_active:
+            return self.pi(obs), self.vf(obs).squeeze(-1)
+        embs = self.embeddings(obs)
+        w_pi, w_vf = self.mixing_weights()
+        return self._policy(obs, embs, w_pi), self._value(obs, embs, w_vf)
 
     def evaluate_actions(self, obs: torch.Tensor):
         if not self.teacher_active:  # the last phase: a plain MLP student, no extra losses
@@ -263,6 +326,31 @@ class MiktActorCritic(ActorCritic):
         keep = ("obs_normalizer.", "pi.", "vf.", "log_std")
         plain.load_state_dict({k: v for k, v in self.state_dict().items() if k.startswith(keep)})  # copies
         return plain
+
+
+class _RolloutPreactivations:
+    """`MLP.preactivations` of a frozen teacher stack into buffers made once (the rollout's batch size)."""
+
+    def __init__(self, net: MLP, n: int):
+        self.tanh = net.activation == "tanh"
+        self.act_ = {"tanh": torch.tanh_, "relu": torch.relu_}[net.activation]
+        self.layers = [(w.detach().t(), b.detach()) for w, b in net.layer_params]
+        self.z = [torch.empty(n, w.shape[1]) for w, _ in self.layers]
+        self.h = [torch.empty(n, w.shape[1]) for w, _ in self.layers]
+
+    def __call__(self, x: torch.Tensor) -> list[torch.Tensor]:
+        for (w_t, b), z, h in zip(self.layers, self.z, self.h, strict=True):
+            torch.addmm(b, x, w_t, out=z)
+            x = torch.tanh(z, out=h) if self.tanh else self.act_(h.copy_(z))
+        return self.z
+
+
+def _sum_into(out: torch.Tensor, zeros: torch.Tensor, terms: tuple[torch.Tensor, ...]) -> torch.Tensor:
+    """sum(terms) into `out`, bit for bit as Python's sum (which starts at 0)."""
+    torch.add(zeros, terms[0], out=out)
+    for t in terms[1:]:
+        out.add_(t)
+    return out
 
 
 def mixed_sources(num_teachers: int, mixing: str = "per-teacher") -> int:

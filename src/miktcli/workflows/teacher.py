@@ -7,6 +7,7 @@ import math
 from collections.abc import Generator
 from pathlib import Path
 
+from miktcli.compile_choice import decide_compile
 from miktcli.envs import load_spec
 from miktcli.errors import MiktError
 from miktcli.nets import OBS_CLIP
@@ -19,11 +20,13 @@ from miktcli.workflows.session import Event, Job, Phase, check_registry_writable
 
 
 def start_teacher(registry: Path, *, env: str, steps: int, seed: int, command: str, name: str | None = None,
-                  num_envs: int = 1, hidden: list[int] | None = None, compile_loss: bool = False) -> Run:
-    """Check everything, then create the run folder of a teacher (PPO from scratch on `env`)."""
+                  num_envs: int = 1, hidden: list[int] | None = None, compile_loss: bool | None = None) -> Run:
+    """Check everything, then create the run folder of a teacher (PPO from scratch on `env`).
+    compile_loss: True/False as asked, None to decide from the run's size (compile_choice.py)."""
     sizes = hidden or [64, 64]
-    config = RunConfig(ppo=PPOConfig(num_envs=num_envs, compile_loss=compile_loss), pi_hidden=sizes, vf_hidden=sizes,
-                       teacher_name=check_name(env if name is None else name))
+    compiled, reason = decide_compile(compile_loss, steps)
+    config = RunConfig(ppo=PPOConfig(num_envs=num_envs, compile_loss=compiled, compile_reason=reason),
+                       pi_hidden=sizes, vf_hidden=sizes, teacher_name=check_name(env if name is None else name))
     return new_run(registry, kind="teacher", env=env, method="ppo", seed=seed, total_steps=steps, config=config,
                    command=command)
 

@@ -11,6 +11,7 @@ import torch
 from pydantic import ValidationError
 
 from miktcli import limits
+from miktcli.compile_choice import decide_compile
 from miktcli.envs import load_spec
 from miktcli.errors import MiktError, TeacherMismatchError, describe_validation_error
 from miktcli.limits import check_count
@@ -62,10 +63,11 @@ def teacher_ref(t: Teacher) -> TeacherRef:
 def start_transfer(
     registry: Path, *, to: str, method: str, teacher_refs: list[str], steps: int, seed: int, command: str,
     kl_coef: float | None = None, num_envs: int = 1, options: dict[str, Any] | None = None,
-    encoder_widths: list[int] | None = None, hidden: list[int] | None = None, compile_loss: bool = False,
+    encoder_widths: list[int] | None = None, hidden: list[int] | None = None, compile_loss: bool | None = None,
     eval_episodes: int = 10,
 ) -> Run:
-    """Check everything a transfer needs, then create its run folder (not yet trained)."""
+    """Check everything a transfer needs, then create its run folder (not yet trained).
+    compile_loss: True/False as asked, None to decide from the run's size (compile_choice.py)."""
     check_count("--eval-episodes", eval_episodes, limits.MAX_EPISODES)
     m = get_method(method)
     m.check_teacher_count(len(teacher_refs))
@@ -83,9 +85,10 @@ def start_transfer(
         by_content[sha] = ref
     sizes = (check_teachers(teachers, encoder_widths if m.encoder_per_teacher else None, hidden) if teachers
              else (hidden or DEFAULT_HIDDEN, hidden or DEFAULT_HIDDEN))
+    compiled, reason = decide_compile(compile_loss, steps)
     try:
         ppo = PPOConfig(num_envs=num_envs, kl_coef=m.default_kl_coef if kl_coef is None else kl_coef,
-                        compile_loss=compile_loss)
+                        compile_loss=compiled, compile_reason=reason)
     except ValidationError as err:
         raise MiktError(f"bad PPO setting: {describe_validation_error(err)}") from err
     config = RunConfig(ppo=ppo, pi_hidden=sizes[0], vf_hidden=sizes[1],
