@@ -3,7 +3,8 @@
     python benchmarks/teacher_table.py [--version 2]
 
 Reads registry/teachers/*/vN.safetensors headers and benchmarks/results/teachers/v2/*-metrics.jsonl; writes
-benchmarks/results/teachers/v2/curves.png and prints the table for the README.
+benchmarks/results/teachers/v2/curves.png and prints the table of docs/guide/teachers.md (Teachers shipped in
+registry/).
 """
 
 from __future__ import annotations
