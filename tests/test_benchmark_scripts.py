@@ -216,6 +216,7 @@ def test_every_committed_grid_loads():
 
 
 def test_throughput_quick_run_writes_its_tables_and_figures(tmp_path):
+    pytest.importorskip("stable_baselines3", reason="the SB3 side needs pip install -e '.[bench]'")
     throughput = load_script("throughput")
     res = throughput.main(["--quick", "--no-whole-process", "--out", str(tmp_path)])
     saved = json.loads((tmp_path / "throughput.json").read_text())
