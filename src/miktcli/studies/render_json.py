@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -10,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from miktcli.registry.files import write_text_atomic
+from miktcli.studies.aggregates import AcrossPairs
 from miktcli.studies.summary import MethodSummary, StudySummary, sample_std
 
 
@@ -30,9 +32,21 @@ def _method_entry(m: MethodSummary, marks: dict[int, int]) -> dict[str, Any]:
     }
 
 
+def across_pairs_json(a: AcrossPairs) -> dict[str, Any]:
+    """The across-pairs section as plain data: its dataclasses' fields, measures and methods keyed by name."""
+    data = dataclasses.asdict(a)
+    data["measures"] = {m["measure"]: {
+        "methods": {x.pop("name"): x for x in m["methods"]},
+        "probability_of_improvement": m["improvements"], "per_pair": m["per_pair"]} for m in data["measures"]}
+    data["profiles"] = {p.pop("name"): p for p in data["profiles"]}
+    return data
+
+
 def summary_json(summary: StudySummary) -> dict[str, Any]:
     data: dict[str, Any] = {pair.name: {m.name: _method_entry(m, pair.marks) for m in pair.with_runs}
                             for pair in summary.pairs}
+    if summary.across_pairs is not None:
+        data["across_pairs"] = across_pairs_json(summary.across_pairs)
     if summary.left_out:
         data["left_out"] = summary.left_out
     return data
