@@ -61,7 +61,9 @@ def main() -> None:
     args = parser.parse_args()
     grid = load_grid(args.grid or ROOT / "benchmarks" / "grids" / f"{args.study.name}.toml")
     random = {t: v["return_mean"] for t, v in json.loads(args.random.read_text())["targets"].items()}
-    print(aggregate_report(args.study, grid, random, random_source=str(args.random)))
+    source = args.random.resolve()  # named in the report: relative to the checkout, never this machine's path
+    source = source.relative_to(ROOT) if source.is_relative_to(ROOT) else source
+    print(aggregate_report(args.study, grid, random, random_source=str(source)))
 
 
 if __name__ == "__main__":

@@ -11,7 +11,8 @@ from typing import Any
 import numpy as np
 
 from miktcli.registry.files import write_text_atomic
-from miktcli.studies.aggregates import AcrossPairs
+from miktcli.studies.aggregates import PROFILE_MEASURE, AcrossPairs
+from miktcli.studies.render_figures import PROFILE_FIGURE
 from miktcli.studies.summary import MethodSummary, StudySummary, sample_std
 
 
@@ -33,12 +34,14 @@ def _method_entry(m: MethodSummary, marks: dict[int, int]) -> dict[str, Any]:
 
 
 def across_pairs_json(a: AcrossPairs) -> dict[str, Any]:
-    """The across-pairs section as plain data: its dataclasses' fields, measures and methods keyed by name."""
+    """The across-pairs section as plain data: its dataclasses' fields, measures and methods keyed by name. The
+    profiles are a figure in results.md, and here too (their 101 thresholds a method would be most of the file)."""
     data = dataclasses.asdict(a)
     data["measures"] = {m["measure"]: {
         "methods": {x.pop("name"): x for x in m["methods"]},
         "probability_of_improvement": m["improvements"], "per_pair": m["per_pair"]} for m in data["measures"]}
-    data["profiles"] = {p.pop("name"): p for p in data["profiles"]}
+    data["profiles"] = ({"figure": PROFILE_FIGURE, "measure": PROFILE_MEASURE, "methods": [p.name for p in a.profiles]}
+                        if a.profiles else None)
     return data
 
 

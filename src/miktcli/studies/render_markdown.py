@@ -166,7 +166,9 @@ def across_pairs_lines(a: AcrossPairs) -> list[str]:
     if a.missing:
         return [*lines, f"No aggregates across pairs: {a.missing}.", *_note_lines(a.notes), ""]
     task = "target" if a.baseline_from_scratch else "pair"
-    shared = f" `{base}` has the same runs on every pair of its target." if a.baseline_from_scratch else ""
+    shared = (f" `{base}` has the same runs on every pair of its target." if a.baseline_from_scratch else
+              f" `{base}` trains with teachers, so each pair has its own scale, and 1 is that method, not PPO from "
+              "scratch.")
     scratch = " (PPO from scratch)" if a.baseline_from_scratch else ""
     lines += [f"Each completed run's score is normalised on its {task}, `(R − R_random) / (R_{base} − R_random)`: "
               f"0 is the uniform-random policy, 1 is `{base}`{scratch} "
