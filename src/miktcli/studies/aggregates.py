@@ -111,9 +111,8 @@ def _baseline(summary: StudySummary) -> tuple[bool, dict[str, str], dict[str, Me
 
 def baseline_targets(summary: StudySummary) -> list[str]:
     """The targets whose random-policy return the section needs: those where the baseline has completed runs."""
-    target_of = {p.name: p.to for p in summary.grid.pairs}
-    return list(dict.fromkeys(target_of[pair.name] for pair in summary.pairs
-                              for m in pair.methods if m.name == summary.grid.baseline and m.runs))
+    _, task_of, runs = _baseline(summary)
+    return list(dict.fromkeys(p.to for p in summary.grid.pairs if task_of[p.name] in runs))
 
 
 def unavailable(summary: StudySummary, why: str, random_source: str = "—",
@@ -126,10 +125,10 @@ def unavailable(summary: StudySummary, why: str, random_source: str = "—",
 
 
 def across_pairs(summary: StudySummary, random: Mapping[str, float], random_source: str,
-                 n_resamples: int = aggregate.RESAMPLES, notes: list[str] | None = None) -> AcrossPairs:
+                 n_resamples: int = aggregate.RESAMPLES) -> AcrossPairs:
     """The section's numbers from the study's summary and each target's random-policy return."""
     grid = summary.grid
-    notes = list(notes or [])
+    notes: list[str] = []
     scratch, task_of, base_runs = _baseline(summary)
     target_of = {p.name: p.to for p in grid.pairs}
     if not base_runs:
@@ -156,9 +155,12 @@ def across_pairs(summary: StudySummary, random: Mapping[str, float], random_sour
             continue
         for measure in MEASURES:
             ref = reference.get(measure)
-            if ref is None or not ref > rand:  # normalising by a scale ≤ 0 would reverse every comparison
-                score = "has no finite score" if ref is None else f"scores {ref:,.1f}"
-                notes.append(f"`{grid.baseline}` {score} ({measure}) on {task}, no better than the random "
+            if ref is None:  # no episode of its runs finished
+                notes.append(f"`{grid.baseline}` has no {measure} on {task}: its pairs ({pairs}) are left out of "
+                             f"the {measure}")
+                continue
+            if not ref > rand:  # normalising by a scale ≤ 0 would reverse every comparison
+                notes.append(f"`{grid.baseline}` scores {ref:,.1f} ({measure}) on {task}, no better than the random "
                              f"policy's {rand:,.1f}: no scale to normalise on, its pairs ({pairs}) are left out "
                              f"of the {measure}")
                 continue
