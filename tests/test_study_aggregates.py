@@ -13,7 +13,7 @@ from test_study import fake_run
 
 runner = CliRunner()
 RANDOM = {"hopper": 0.0, "ant": 5.0}
-GRID = ('name = "agg"\nsteps = 6144\nseeds = [0, 1]\nbaseline = "vpg"\n{extra}'
+GRID = ('name = "agg"\nsteps = 6144\nseeds = [0, 1]\nbaseline = "{baseline}"\n{extra}'
         '[[pairs]]\nfrom = ["four"]\nto = "hopper"\n[[pairs]]\nfrom = ["four"]\nto = "ant"\n'
         '[[methods]]\nname = "mikt"\nmethod = "mikt"\n[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
 # final returns: vpg hopper 10, 30 (R_vpg 20), ant 20, 40 (R_vpg 30); mikt twice to thrice that
@@ -35,12 +35,12 @@ def measured(monkeypatch):
     return calls
 
 
-def study_with(registry, tmp_path, cells=FINALS, extra=""):
+def study_with(registry, tmp_path, cells=FINALS, extra="", baseline="vpg"):
     from miktcli.studies.grid import load_grid
     from miktcli.studies.study import Study
 
     grid_file = tmp_path / "agg.toml"
-    grid_file.write_text(GRID.format(extra=extra))
+    grid_file.write_text(GRID.format(extra=extra, baseline=baseline))
     study = Study(load_grid(grid_file), tmp_path / "out", registry)
     for key, final in cells.items():
         target, method, seed = key.split(">")[1].split("|")
@@ -167,3 +167,13 @@ def test_the_random_policy_measurement_is_seeded_and_whole_episodes():
     assert first == random_returns("hopper", episodes=2, seed=3)
     assert (first["episodes"], first["seed"], len(first["returns"])) == (2, 3, 2)
     assert first["return_mean"] == pytest.approx(sum(first["returns"]) / 2) and first["length_mean"] >= 1
+
+
+def test_a_baseline_with_teachers_scales_each_pair_by_its_own_runs(registry, tmp_path, measured):
+    study, _ = study_with(registry, tmp_path, baseline="mikt")
+    study.report()
+    text = section(tmp_path / "out")
+    assert "normalised on its pair" in text and "not PPO from scratch" in text
+    assert "| pair | R_random | R_mikt (final return) | n |" in text
+    assert "| four → ant | 5.0 | 60 | 2 |" in text  # mikt's 50, 70 there: vpg's 20, 40 are (20 − 5) / 55 …
+    assert "| four → hopper | 1.00 | 0.40 |" in text  # … and on hopper vpg's 10, 30 over mikt's 50: IQM 0.4
