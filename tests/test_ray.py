@@ -47,10 +47,12 @@ def local_ray():
 
 
 def numbers(out: Path) -> dict:
-    """The summary numbers a study reports, without run ids."""
+    """The summary numbers a study reports, without run ids (the section across pairs names none)."""
     summary = json.loads((out / "summary.json").read_text())
-    return {pair: {m: {k: v for k, v in s.items() if k != "runs"} for m, s in methods.items()}
-            for pair, methods in summary.items()}
+    across = summary.pop("across_pairs")
+    pairs = {pair: {m: {k: v for k, v in s.items() if k != "runs"} for m, s in methods.items()}
+             for pair, methods in summary.items()}
+    return {"across_pairs": across, **pairs}
 
 
 def setup(tmp_path, monkeypatch, name):

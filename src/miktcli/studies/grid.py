@@ -81,6 +81,8 @@ class Grid(BaseModel):
     marks: list[int] = Field(default_factory=list, description="step marks of the results table")
     eval_episodes: int = Field(10, ge=1)
     baseline: str = Field("vpg", description="the method whose final return the others race to")
+    random_returns: bool = Field(True, description="the report's across-pairs section, normalised between the "
+                                 "random policy (measured once per target into the study folder) and the baseline")
     compile_loss: bool = Field(False, description="every cell's PPO loss through torch.compile (see --compile)")
     pairs: list[PairSpec] = Field(min_length=1)
     methods: list[MethodSpec] = Field(min_length=1)

@@ -1,14 +1,17 @@
 """A study's figures from its summary: each pair's learning curves (mean ± sample std over seeds) and student
-weights, and every pair at a glance (summary.png) when the study has more than one."""
+weights, every pair at a glance (summary.png) when the study has more than one, and the performance profiles
+across pairs (aggregate-profile.png) where the report has them."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from miktcli.plots import png_panels, png_plot
+from miktcli.plots import png_panels, png_performance_profiles, png_plot
+from miktcli.studies.aggregates import PROFILE_MEASURE, AcrossPairs
 from miktcli.studies.summary import PairSummary, StudySummary, partial_seed_labels
 
 SUMMARY_FIGURE = "summary.png"
+PROFILE_FIGURE = "aggregate-profile.png"
 
 
 def curves_file(pair: PairSummary) -> str:
@@ -31,6 +34,15 @@ def _curve_panel(pair: PairSummary, seeds: int):
     return series, bands, partial_seed_labels({m.name: m.n for m in methods}, seeds)
 
 
+def write_profiles(across: AcrossPairs, out_dir: Path, title: str) -> Path | None:
+    """The performance profiles of the across-pairs section, where it has them."""
+    if not across.profiles:
+        return None
+    profiles = {p.name: (p.thresholds, p.fraction, p.low, p.high) for p in across.profiles}
+    return png_performance_profiles(profiles, out_dir / PROFILE_FIGURE,
+                                    f"{title}: performance profiles ({PROFILE_MEASURE}, normalised; 95 % bands)")
+
+
 def write_figures(summary: StudySummary, out_dir: Path) -> None:
     order = [m.name for m in summary.grid.methods]  # each method keeps its colour in every figure
     seeds = len(summary.grid.seeds)
@@ -49,3 +61,5 @@ def write_figures(summary: StudySummary, out_dir: Path) -> None:
                      labels=partial_seed_labels(counts, seeds))
     if draws_summary(summary):
         png_panels(panels, out_dir / SUMMARY_FIGURE, "mean episode return", order=order, labels=panel_labels)
+    if summary.across_pairs is not None:
+        write_profiles(summary.across_pairs, out_dir, summary.grid.name)

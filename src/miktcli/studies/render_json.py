@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -10,6 +11,8 @@ from typing import Any
 import numpy as np
 
 from miktcli.registry.files import write_text_atomic
+from miktcli.studies.aggregates import PROFILE_MEASURE, AcrossPairs
+from miktcli.studies.render_figures import PROFILE_FIGURE
 from miktcli.studies.summary import MethodSummary, StudySummary, sample_std
 
 
@@ -30,9 +33,23 @@ def _method_entry(m: MethodSummary, marks: dict[int, int]) -> dict[str, Any]:
     }
 
 
+def across_pairs_json(a: AcrossPairs) -> dict[str, Any]:
+    """The across-pairs section as plain data: its dataclasses' fields, measures and methods keyed by name. The
+    profiles are a figure in results.md, and here too (their 101 thresholds a method would be most of the file)."""
+    data = dataclasses.asdict(a)
+    data["measures"] = {m["measure"]: {
+        "methods": {x.pop("name"): x for x in m["methods"]},
+        "probability_of_improvement": m["improvements"], "per_pair": m["per_pair"]} for m in data["measures"]}
+    data["profiles"] = ({"figure": PROFILE_FIGURE, "measure": PROFILE_MEASURE, "methods": [p.name for p in a.profiles]}
+                        if a.profiles else None)
+    return data
+
+
 def summary_json(summary: StudySummary) -> dict[str, Any]:
     data: dict[str, Any] = {pair.name: {m.name: _method_entry(m, pair.marks) for m in pair.with_runs}
                             for pair in summary.pairs}
+    if summary.across_pairs is not None:
+        data["across_pairs"] = across_pairs_json(summary.across_pairs)
     if summary.left_out:
         data["left_out"] = summary.left_out
     return data

@@ -6,9 +6,11 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from miktcli.aggregate import Estimate
 from miktcli.registry.cards import describe_code_history
 from miktcli.registry.runs import Run
-from miktcli.studies.render_figures import SUMMARY_FIGURE, curves_file, draws_summary, weights_file
+from miktcli.studies.aggregates import MEASURES, PROFILE_MEASURE, PROFILE_RESAMPLES, SEED, AcrossPairs, MeasureAggregate
+from miktcli.studies.render_figures import PROFILE_FIGURE, SUMMARY_FIGURE, curves_file, draws_summary, weights_file
 from miktcli.studies.summary import MethodSummary, PairSummary, StudySummary, mean_pm_std
 
 
@@ -135,8 +137,71 @@ def _runs_section(summary: StudySummary) -> list[str]:
     return lines
 
 
+def _estimate(e: Estimate) -> str:
+    return f"{e.value:.2f} [{e.low:.2f}, {e.high:.2f}]"
+
+
+def _measure_lines(m: MeasureAggregate, baseline: str, pairs: list[str]) -> list[str]:
+    lines = [f"### {m.measure[0].upper()}{m.measure[1:]}", "",
+             f"Score: {MEASURES[m.measure]}, normalised by the same measure of `{baseline}`.", "",
+             "| method | runs | pairs | IQM [95 % CI] | mean [95 % CI] |", "|---|---|---|---|---|"]
+    lines += [f"| {a.name} | {a.runs} | {a.pairs} | {_estimate(a.iqm)} | {_estimate(a.mean)} |" for a in m.methods]
+    if m.improvements:
+        lines += ["", "| X vs Y | P(X > Y) [95 % CI] | pairs |", "|---|---|---|"]
+        lines += [f"| {i.x} vs {i.y} | {_estimate(i.estimate)} | {i.pairs} |" for i in m.improvements]
+    names = [a.name for a in m.methods]
+    lines += ["", "Per pair (IQM of its runs, normalised):", "",
+              "| pair | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    for pair in pairs:
+        cells = [f"{m.per_pair[pair][n]:.2f}" if n in m.per_pair.get(pair, {}) else "—" for n in names]
+        lines.append(f"| {pair} | " + " | ".join(cells) + " |")
+    return [*lines, ""]
+
+
+def across_pairs_lines(a: AcrossPairs) -> list[str]:
+    """The "Across pairs" section: the normalisation, each measure's IQM and mean with their intervals, the
+    probability of improvement, per-pair IQMs and the profiles' figure; or why it has no numbers."""
+    base = a.baseline
+    lines = ["## Across pairs", ""]
+    if a.missing:
+        return [*lines, f"No aggregates across pairs: {a.missing}.", *_note_lines(a.notes), ""]
+    task = "target" if a.baseline_from_scratch else "pair"
+    shared = (f" `{base}` has the same runs on every pair of its target." if a.baseline_from_scratch else
+              f" `{base}` trains with teachers, so each pair has its own scale, and 1 is that method, not PPO from "
+              "scratch.")
+    scratch = " (PPO from scratch)" if a.baseline_from_scratch else ""
+    lines += [f"Each completed run's score is normalised on its {task}, `(R − R_random) / (R_{base} − R_random)`: "
+              f"0 is the uniform-random policy, 1 is `{base}`{scratch} "
+              f"at the same budget ({a.steps:,} steps), R_{base} "
+              f"the mean of its completed runs on that {task}. Tasks are the {len(a.pairs)} pairs.{shared} IQM: "
+              "the 25 % trimmed mean over all runs × pairs pooled; intervals: 95 % percentile stratified "
+              f"bootstrap (each pair's runs resampled within the pair; {a.n_resamples:,} resamples, seed {SEED}); "
+              "probability of improvement: per pair the Mann–Whitney U / (n_x n_y), averaged over pairs "
+              f"(Agarwal et al. 2021). Random-policy returns: {a.random_source}.", "",
+              *_note_lines(a.notes),
+              "### Normalisation", "", f"| {task} | R_random | R_{base} (final return) | n |", "|---|---|---|---|"]
+    for n in a.normalisation:
+        rand = "—" if n.random is None else f"{n.random:,.1f}"
+        ref = n.reference.get("final return")
+        lines.append(f"| {n.task} | {rand} | {'—' if ref is None else f'{ref:,.0f}'} | {n.runs} |")
+    lines.append("")
+    for m in a.measures:
+        lines += _measure_lines(m, base, a.pairs)
+    if a.profiles:
+        lines += ["### Performance profiles", "", f"![performance profiles]({PROFILE_FIGURE})", "",
+                  f"The fraction of runs whose normalised {PROFILE_MEASURE} is above τ, averaged over pairs, with "
+                  f"pointwise 95 % stratified bootstrap bands ({PROFILE_RESAMPLES:,} resamples).", ""]
+    return lines
+
+
+def _note_lines(notes: list[str]) -> list[str]:
+    return ["Left out:", "", *(f"- {note}" for note in notes), ""] if notes else []
+
+
 def render_markdown(summary: StudySummary) -> str:
     lines = _intro(summary)
+    if summary.across_pairs is not None:
+        lines += across_pairs_lines(summary.across_pairs)
     for pair in summary.pairs:
         lines += _pair_section(pair, summary.grid.baseline)
     return "\n".join(lines + _runs_section(summary)) + "\n"

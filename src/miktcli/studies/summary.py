@@ -7,13 +7,16 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from miktcli.registry.runs import Run
 from miktcli.stats import compare
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key, file_slug
+
+if TYPE_CHECKING:
+    from miktcli.studies.aggregates import AcrossPairs
 
 RunOf = Callable[[str], Run | None]  # a cell key → its run, if one was started
 PerSeed = dict[str, dict[str, np.ndarray]]  # method → measure → one value per completed seed
@@ -220,6 +223,7 @@ class StudySummary:
     cells: list[tuple[str, str, Run | None]]  # (cell key, run id, the run if the registry has it)
     # each teacher reference of the grid → the versions the study's runs used (more than one: a mix)
     teachers: dict[str, list[TeacherVersion]] = field(default_factory=dict)
+    across_pairs: AcrossPairs | None = None  # studies.aggregates, added by the report (it reads the study folder)
 
 
 def _mark_indices(marks: list[int], steps: np.ndarray | None) -> dict[int, int]:
