@@ -8,18 +8,10 @@ from pathlib import Path
 
 import gymnasium as gym
 import pytest
-from typer.testing import CliRunner
 
-from miktcli.cli.app import app
+from test_cli import mikt
 
 ASSETS = Path(gym.__file__).parent / "envs" / "mujoco" / "assets"
-runner = CliRunner()
-
-
-def mikt(*args, code=0):
-    result = runner.invoke(app, [str(a) for a in args])
-    assert result.exit_code == code, result.output
-    return result
 
 
 @pytest.fixture()

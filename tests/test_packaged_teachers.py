@@ -7,19 +7,11 @@ import shutil
 from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
 
-from miktcli.cli.app import app
 from miktcli.registry import packaged
+from test_cli import mikt
 
 ROOT = Path(__file__).resolve().parents[1]
-runner = CliRunner()
-
-
-def mikt(*args, code=0):
-    result = runner.invoke(app, [str(a) for a in args])
-    assert result.exit_code == code, result.output
-    return result
 
 
 @pytest.fixture()
