@@ -221,6 +221,27 @@ def test_a_cell_whose_run_id_now_names_another_run_is_an_error_not_a_result(regi
     assert not (registry / "runs" / "run2").exists()  # nothing trained or created meanwhile
 
 
+def test_a_run_recording_the_budget_as_asked_still_is_its_cell_and_a_wrong_budget_names_both(registry, tmp_path):
+    """Runs made before budgets were rounded up to whole rollouts record the budget as asked (500,000, not
+    501,760): they are still their cell's run. A run of another budget is refused, naming the rounded figure."""
+    from miktcli.registry.runs import open_run
+    from miktcli.studies.grid import cell_key, load_grid
+    from miktcli.studies.study import Study
+
+    grid_file = tmp_path / "g.toml"
+    grid_file.write_text('name = "g"\nsteps = 5000\nseeds = [0]\n[[pairs]]\nfrom = ["x"]\nto = "hopper"\n'
+                         '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+    study = Study(load_grid(grid_file), tmp_path / "out", registry)
+    run_id = fake_run(registry, "hopper", "vpg", 0, [1, 2], 5)  # records 4,096 steps
+    study._remember(cell_key(*study.plan()[0]), run_id)
+    r = runner.invoke(app, ["study", str(grid_file), "--out", str(tmp_path / "out"), "--report-only"])
+    assert r.exit_code == 1 and "trains 4,096 steps, the grid 5,000 (6,144 in whole rollouts of 2,048)" in r.output
+    open_run(registry, run_id).save_card(total_steps=5000)  # the budget as asked, as mikt before 9519580 wrote it
+    r = runner.invoke(app, ["study", str(grid_file), "--out", str(tmp_path / "out"), "--report-only"])
+    assert r.exit_code == 0, r.output
+    assert "| vpg | 1 |" in (tmp_path / "out" / "results.md").read_text()
+
+
 def test_a_study_start_turns_never_trained_running_or_interrupted_cells_into_created(registry, tmp_path):
     from miktcli.registry.runs import open_run
     from miktcli.studies.grid import load_grid

@@ -45,8 +45,11 @@ def cell_mismatch(run: Run, pair: PairSpec, method: MethodSpec, seed: int, steps
     if (card.kind, card.env, card.method, card.seed) != ("transfer", pair.to, method.method, seed) or not same_teachers:
         teachers = ", ".join(t.ref for t in card.teachers) or "none"
         return f"is a {card.kind} run of {card.method} on {card.env}, seed {card.seed}, teachers {teachers}"
-    if card.total_steps != whole_rollouts(steps, card.config.ppo.batch_size):
-        return f"trains {card.total_steps:,} steps, the grid {steps:,}"
+    # a run made before budgets were rounded up to whole rollouts (9519580) recorded the budget as asked
+    rounded = whole_rollouts(steps, card.config.ppo.batch_size)
+    if card.total_steps not in (steps, rounded):
+        whole = f" ({rounded:,} in whole rollouts of {card.config.ppo.batch_size:,})" if rounded != steps else ""
+        return f"trains {card.total_steps:,} steps, the grid {steps:,}{whole}"
     return None
 
 
