@@ -88,10 +88,11 @@ def physics_us(env_name: str, number: int, repeats: int) -> float:
 
 
 # --- 2. in process ----------------------------------------------------------------------------------------
-def engine_run(steps: int, seed: int) -> dict:
-    """This engine's PPO on Ant, eager update (what `mikt teacher train` runs at this size)."""
+def engine_run(steps: int, seed: int, compile_loss: bool = False) -> dict:
+    """This engine's PPO on Ant: the eager update (what `mikt teacher train` runs at this size), or the compiled
+    one (what it runs by default from AUTO_MIN_STEPS, e.g. at the paper's 2M; compiled in the warm-up)."""
     torch.manual_seed(seed)
-    config = PPOConfig()
+    config = PPOConfig(compile_loss=compile_loss)
     trainer = PPOTrainer(GaussianActorCritic(111, 8), lambda: make_env("ant"), config,
                          steps + config.batch_size, seed)
     iterations = trainer.run()
@@ -233,6 +234,9 @@ def ratios(res: dict) -> dict:
     phys = 1e6 / res["physics_ant_us"]
     r["rollout_vs_physics"] = res["in_process"]["engine"]["rollout_steps_per_sec"] / phys
     r["ppo_vs_sb3"] = res["in_process"]["engine"]["steps_per_sec"] / res["in_process"]["sb3"]["steps_per_sec"]
+    if "engine_compiled" in res["in_process"]:
+        r["ppo_compiled_vs_sb3"] = (res["in_process"]["engine_compiled"]["steps_per_sec"]
+                                    / res["in_process"]["sb3"]["steps_per_sec"])
     wp = res.get("whole_process")
     if wp:
         r["teacher_vs_sb3_script"] = wp["sb3_ppo_script"]["wall_s"] / wp["mikt_teacher_train_ant"]["wall_s"]
@@ -264,6 +268,11 @@ def markdown(res: dict) -> str:
         f"| PPO in process vs Stable-Baselines3 (Ant, {fmt(eng['steps'])} steps) | {fmt(eng['steps_per_sec'])} steps/s "
         f"| {fmt(sb3['steps_per_sec'])} steps/s | {r['ppo_vs_sb3']:.2f}× | ≥ {TARGETS['ppo_vs_sb3']}× |",
     ]
+    comp = ip.get("engine_compiled")
+    if comp:
+        lines.append(f"| the same, compiled update (the default from {AUTO_MIN_STEPS:,} steps, e.g. the paper's 2M) "
+                     f"| {fmt(comp['steps_per_sec'])} steps/s | {fmt(sb3['steps_per_sec'])} steps/s | "
+                     f"{r['ppo_compiled_vs_sb3']:.2f}× | ≥ {TARGETS['ppo_vs_sb3']}× |")
     wp = res.get("whole_process")
     if wp:
         base = wp["ppo_from_scratch_eight"]["wall_s"]
@@ -281,10 +290,12 @@ def markdown(res: dict) -> str:
         lines += ["", f"The whole-process runs are below {AUTO_MIN_STEPS:,} steps, so their update is eager (auto); "
                   "each command's stderr names the path and its card records it."]
     us = eng["us_per_step"]
+    compiled_update = f", {comp['us_per_step']['update']:.0f} compiled" if comp else ""
     lines += ["", "**Where this engine's PPO step goes** (Ant, in process, µs per env step, the engine's own timers): "
               f"env {us['env']:.0f} (of which physics alone {res['physics_ant_us']:.0f}), inference "
               f"{us['inference']:.0f}, rest of the rollout {us['rollout_other']:.0f}, update {us['update']:.0f} "
-              f"(eager). SB3 spends {1e6 / sb3['steps_per_sec']:.0f} µs per step in all; "
+              f"(eager){compiled_update}. SB3 spends "
+              f"{1e6 / sb3['steps_per_sec']:.0f} µs per step in all; "
               f"{TARGETS['ppo_vs_sb3']}× SB3 leaves {1e6 / sb3['steps_per_sec'] / TARGETS['ppo_vs_sb3']:.0f} µs.", ""]
     lines += ["| piece (µs per call, min of repeats) | gymnasium / module path | lean / rollout path |",
               "|---|---|---|"]
@@ -360,9 +371,11 @@ def main(argv: list[str] | None = None) -> dict:
                  "steps_teacher": steps_teacher, "steps_transfer": steps_transfer}
     t_start = time.perf_counter()
     res["physics_ant_us"] = physics_us("ant", number * 2, repeats + 2)
-    runs: dict[str, list[dict]] = {"engine": [], "sb3": []}
+    runs: dict[str, list[dict]] = {"engine": [], "sb3": []} | ({} if quick else {"engine_compiled": []})
     for _ in range(repeats):
         runs["engine"].append(engine_run(steps, args.seed))
+        if not quick:
+            runs["engine_compiled"].append(engine_run(steps, args.seed, compile_loss=True))
         runs["sb3"].append(sb3_run(steps, args.seed))
     res["in_process"] = {k: min(v, key=lambda r: r["wall_s"]) for k, v in runs.items()}
     res["pieces"] = {"env": env_pieces(number, repeats + 2), "rollout": rollout_pieces(number, repeats + 2),

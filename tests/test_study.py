@@ -1,4 +1,5 @@
 import json
+import warnings
 from pathlib import Path
 
 from typer.testing import CliRunner
@@ -114,6 +115,38 @@ def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
     assert [(r["a"], r["b"], r["measure"]) for r in compared["a → hopper"]] == [
         ("mikt", "vpg", "final return"), ("mikt", "vpg", "mean over training"),
         ("mikt", "vpg", "final eval (no teacher)")]
+
+
+def test_several_methods_weights_are_drawn_one_panel_per_method(monkeypatch, registry, tmp_path):
+    """A screening of many multi-teacher methods drew every weight of every method on one set of axes
+    (96 curves; tight_layout gave up with a warning): now each method has its panel, weights named alone."""
+    from miktcli.studies import render_figures
+    from miktcli.studies.grid import cell_key, load_grid
+    from miktcli.studies.study import Study
+
+    grid_file = tmp_path / "g.toml"
+    grid_file.write_text('name = "w"\nsteps = 6144\nseeds = [0, 1]\nbaseline = "a"\n[[pairs]]\nfrom = ["x", "y"]\n'
+                         'to = "hopper"\n[[methods]]\nname = "a"\nmethod = "mikt"\n'
+                         '[[methods]]\nname = "b"\nmethod = "mikt"\n')
+    study = Study(load_grid(grid_file), tmp_path / "out", registry)
+    mix = {"p_pi_0": 0.5, "w_pi_0_t0": 0.3, "w_pi_0_t1": 0.2}
+    for pair, method, seed in study.plan()[:3]:  # b has one seed of two
+        study._remember(cell_key(pair, method, seed),
+                        fake_run(registry, "hopper", "mikt", seed, [1, 2, 3], 5, mix, teachers=["x", "y"]))
+    drawn = []
+    real = render_figures.png_panels
+    monkeypatch.setattr(render_figures, "png_panels",
+                        lambda panels, path, ylabel, **kw: drawn.append((panels, path, ylabel, kw))
+                        or real(panels, path, ylabel, **kw))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no layout warning
+        study.report()
+    (panels, path, ylabel, kw), = drawn
+    assert path.name.startswith("weights-") and path.exists()
+    assert [title for _, title, _ in panels] == ["a: student weights", "b: student weights"]
+    assert all(sorted(series) == ["p_pi_0", "w_pi_0_t0", "w_pi_0_t1"] for series, _, _ in panels)
+    assert ylabel == "weight (p: the student, w: each teacher)"
+    assert kw["labels"][0] == {} and kw["labels"][1]["p_pi_0"] == "p_pi_0 (1 of 2 seeds)"
 
 
 def test_completed_runs_with_incomplete_files_are_left_out_and_named(registry, tmp_path):

@@ -34,6 +34,20 @@ def _curve_panel(pair: PairSummary, seeds: int):
     return series, bands, partial_seed_labels({m.name: m.n for m in methods}, seeds)
 
 
+def write_weight_panels(pair: PairSummary, weighted: list, out_dir: Path, seeds: int) -> Path:
+    """Several methods' weights: one panel per method, each weight named alone (the method is the panel's
+    title), so a weight keeps its colour from panel to panel. All of them on one set of axes (a screening of
+    eight two-teacher methods has 96 curves) could not be read, and its legend outgrew the axes."""
+    panels, labels = [], []
+    for m in weighted:
+        series = {key.removeprefix(f"{m.name} "): curve for key, curve in m.weight_curves.items()}
+        panels.append((series, f"{m.name}: student weights", None))
+        labels.append(partial_seed_labels(dict.fromkeys(series, m.n), seeds))
+    teachers = any(key.startswith("w_") for series, _, _ in panels for key in series)
+    ylabel = "weight (p: the student, w: each teacher)" if teachers else "p (student)"
+    return png_panels(panels, out_dir / weights_file(pair), ylabel, labels=labels)
+
+
 def write_profiles(across: AcrossPairs, out_dir: Path, title: str) -> Path | None:
     """The performance profiles of the across-pairs section, where it has them."""
     if not across.profiles:
@@ -54,11 +68,12 @@ def write_figures(summary: StudySummary, out_dir: Path) -> None:
             panel_labels.append(labels)
             png_plot(series, out_dir / curves_file(pair), pair.name, "mean episode return", bands, order, labels)
         weighted = [m for m in pair.methods if m.weight_curves]
-        if weighted:
-            series = {key: curve for m in weighted for key, curve in m.weight_curves.items()}
-            counts = {key: m.n for m in weighted for key in m.weight_curves}
-            png_plot(series, out_dir / weights_file(pair), f"{pair.name}: student weights", "p (student)",
-                     labels=partial_seed_labels(counts, seeds))
+        if len(weighted) == 1:
+            m = weighted[0]
+            png_plot(m.weight_curves, out_dir / weights_file(pair), f"{pair.name}: student weights", "p (student)",
+                     labels=partial_seed_labels(dict.fromkeys(m.weight_curves, m.n), seeds))
+        elif weighted:
+            write_weight_panels(pair, weighted, out_dir, seeds)
     if draws_summary(summary):
         png_panels(panels, out_dir / SUMMARY_FIGURE, "mean episode return", order=order, labels=panel_labels)
     if summary.across_pairs is not None:
