@@ -48,6 +48,8 @@ from miktcli.policies import GaussianActorCritic
 from miktcli.ppo import PPOConfig, PPOTrainer, RewardScaler
 
 ROOT = Path(__file__).resolve().parents[1]
+# in process at study settings (centipede-eight, compiled update): PPO from scratch, one and two teachers
+STUDY_RUNS = {"ppo": None, "mikt_1": ["centipede-six"], "mikt_2": ["centipede-four", "centipede-six"]}
 TARGETS = {"rollout_vs_physics": 0.70, "ppo_vs_sb3": 2.5, "teacher_vs_sb3_script": 2.5,
            "one_teacher_vs_ppo": 1.25, "two_teachers_vs_ppo": 1.5}
 
@@ -88,13 +90,20 @@ def physics_us(env_name: str, number: int, repeats: int) -> float:
 
 
 # --- 2. in process ----------------------------------------------------------------------------------------
-def engine_run(steps: int, seed: int, compile_loss: bool = False) -> dict:
+def engine_run(steps: int, seed: int, compile_loss: bool = False, env: str = "ant",
+               teachers: list[str] | None = None) -> dict:
     """This engine's PPO on Ant: the eager update (what `mikt teacher train` runs at this size), or the compiled
-    one (what it runs by default from AUTO_MIN_STEPS, e.g. at the paper's 2M; compiled in the warm-up)."""
+    one (what it runs by default from AUTO_MIN_STEPS, e.g. at the paper's 2M; compiled in the warm-up). With
+    `teachers`, MIKT on `env` with the teacher active and coupled throughout (the first 90 % of a run)."""
     torch.manual_seed(seed)
-    config = PPOConfig(compile_loss=compile_loss)
-    trainer = PPOTrainer(GaussianActorCritic(111, 8), lambda: make_env("ant"), config,
-                         steps + config.batch_size, seed)
+    config = PPOConfig(compile_loss=compile_loss, kl_coef=0.05 if teachers else 0.0)
+    if teachers:
+        agent = mikt_agent(env, teachers)
+    else:
+        probe = make_env(env)
+        agent = GaussianActorCritic(probe.observation_space.shape[0], probe.action_space.shape[0])
+        probe.close()
+    trainer = PPOTrainer(agent, lambda: make_env(env), config, steps + config.batch_size, seed)
     iterations = trainer.run()
     next(iterations)  # untimed warm-up
     totals = dict.fromkeys(("time_env", "time_inference", "time_rollout", "time_update"), 0.0)
@@ -243,6 +252,10 @@ def ratios(res: dict) -> dict:
         base = wp["ppo_from_scratch_eight"]["wall_s"]
         r["one_teacher_vs_ppo"] = wp["one_teacher_six_to_eight"]["wall_s"] / base
         r["two_teachers_vs_ppo"] = wp["two_teachers_four_six_to_eight"]["wall_s"] / base
+    study = res.get("study_speed")
+    if study:
+        for name in ("mikt_1", "mikt_2"):
+            r[f"study_{name}_vs_ppo"] = study["ppo"]["steps_per_sec"] / study[name]["steps_per_sec"]
     return r
 
 
@@ -289,6 +302,18 @@ def markdown(res: dict) -> str:
         ]
         lines += ["", f"The whole-process runs are below {AUTO_MIN_STEPS:,} steps, so their update is eager (auto); "
                   "each command's stderr names the path and its card records it."]
+    study = res.get("study_speed")
+    if study:
+        ppo = study["ppo"]
+        lines += ["", f"At a study's settings (in process, centipede-eight, compiled update as from {AUTO_MIN_STEPS:,} "
+                  f"steps, {fmt(ppo['steps'])} timed steps, the teachers active and coupled as in the first 90 % of a "
+                  f"run): PPO from scratch {fmt(ppo['steps_per_sec'])} steps/s; one teacher (six) "
+                  f"{fmt(study['mikt_1']['steps_per_sec'])} steps/s, {r['study_mikt_1_vs_ppo']:.2f}× PPO's time "
+                  f"(target {TARGETS['one_teacher_vs_ppo']}×); two teachers (four + six) "
+                  f"{fmt(study['mikt_2']['steps_per_sec'])} steps/s, {r['study_mikt_2_vs_ppo']:.2f}× "
+                  f"(target {TARGETS['two_teachers_vs_ppo']}×). Per env step (µs; env / inference / update): "
+                  + "; ".join(f"{name} {u['env']:.0f} / {u['inference']:.0f} / {u['update']:.0f}"
+                              for name, u in ((n, study[n]["us_per_step"]) for n in STUDY_RUNS)) + "."]
     us = eng["us_per_step"]
     compiled_update = f", {comp['us_per_step']['update']:.0f} compiled" if comp else ""
     lines += ["", "**Where this engine's PPO step goes** (Ant, in process, µs per env step, the engine's own timers): "
@@ -378,6 +403,12 @@ def main(argv: list[str] | None = None) -> dict:
             runs["engine_compiled"].append(engine_run(steps, args.seed, compile_loss=True))
         runs["sb3"].append(sb3_run(steps, args.seed))
     res["in_process"] = {k: min(v, key=lambda r: r["wall_s"]) for k, v in runs.items()}
+    if not quick:  # a study's runs: 2M steps on a centipede, so compiled (auto), PPO against MIKT
+        study: dict[str, list[dict]] = {name: [] for name in STUDY_RUNS}
+        for _ in range(repeats):
+            for name, teachers in STUDY_RUNS.items():
+                study[name].append(engine_run(steps, args.seed, True, "centipede-eight", teachers))
+        res["study_speed"] = {k: min(v, key=lambda r: r["wall_s"]) for k, v in study.items()}
     res["pieces"] = {"env": env_pieces(number, repeats + 2), "rollout": rollout_pieces(number, repeats + 2),
                      "update": update_pieces(repeats * 3, compiled=not quick)}
     if not args.no_whole_process:
