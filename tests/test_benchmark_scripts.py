@@ -222,7 +222,7 @@ def test_throughput_quick_run_writes_its_tables_and_figures(tmp_path):
     res = throughput.main(["--quick", "--no-whole-process", "--out", str(tmp_path)])
     saved = json.loads((tmp_path / "throughput.json").read_text())
     assert saved["quick"] and saved["in_process"]["engine"]["lean_env"]
-    assert set(saved["ratios"]) == {"rollout_vs_physics", "ppo_vs_sb3"}
+    assert set(saved["ratios"]) == {"rollout_vs_physics", "rollout_vs_physics_same_steps", "ppo_vs_sb3"}
     assert all(v > 0 for v in saved["ratios"].values())
     page = (tmp_path / "throughput.md").read_text()
     assert saved["date"] in page and "python benchmarks/throughput.py --quick" in page
