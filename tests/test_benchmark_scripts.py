@@ -20,6 +20,7 @@ def load_script(name: str):
         sys.path.insert(0, str(BENCHMARKS))
     spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # a script's dataclasses look their module up while it runs
     spec.loader.exec_module(module)
     return module
 
@@ -270,3 +271,81 @@ def test_aggregate_report_normalises_by_random_and_the_baseline_per_target(regis
     assert "| four → ant | 2.20 | 1.00 |" in final  # two runs: nothing trimmed
     assert "| ant | 5.0 | 30 | 2 |" in text
     assert (study / "aggregate-profile.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_multi_teacher_report_against_cat_and_across_studies_by_hand(registry, tmp_path):
+    from miktcli.studies.grid import load_grid
+
+    two_grid, one_grid, cat_file = tmp_path / "two.toml", tmp_path / "one.toml", tmp_path / "cat.toml"
+    two_grid.write_text(
+        'name = "two"\nsteps = 12288\nseeds = [0, 1]\nmarks = [4096, 8192, 12288]\nbaseline = "vpg"\n'
+        '[[pairs]]\nfrom = ["a", "b"]\nto = "hopper"\n[[pairs]]\nfrom = ["a", "b"]\nto = "ant"\n'
+        '[[methods]]\nname = "mikt"\nmethod = "mikt"\n[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+    one_grid.write_text(GRID.format(  # seeds 0-2: seed 2 is not on the two-teacher grid's seeds, left out
+        name="one", seeds="[0, 1, 2]", baseline="mikt", extra="",
+        pairs='[[pairs]]\nfrom = ["a"]\nto = "hopper"\n[[pairs]]\nfrom = ["c"]\nto = "walker"\n'))
+    cat_file.write_text('estimator = "by hand"\nwindows = [[2048, 4096], [10240, 12288]]\n'
+                        '[[runs]]\nteachers = ["a", "b"]\nto = "hopper"\nreturns = [10, 50]\n')
+    two = {
+        "a+b>hopper|mikt|0": fake_run(registry, "hopper", "mikt", 0, [0, 20, 30, 40, 50, 60], 1,
+                                      per_iteration=[10, 20, 30, 40, 50, 60]),
+        "a+b>hopper|mikt|1": fake_run(registry, "hopper", "mikt", 1, [0, 10, 30, 20, 40, 80], 1,
+                                      per_iteration=[30, 40, float("nan"), 60, 70, 80]),
+        "a+b>ant|mikt|0": fake_run(registry, "ant", "mikt", 0, [0, 40, 10, 20, 30, 30], 1,
+                                   per_iteration=[0] * 6),  # falls between 4096 and 8192; seed 1 unfinished
+        "->hopper|vpg|0": fake_run(registry, "hopper", "vpg", 0, [20] * 6, 1),
+        "->hopper|vpg|1": fake_run(registry, "hopper", "vpg", 1, [40] * 6, 1),
+        "->ant|vpg|0": fake_run(registry, "ant", "vpg", 0, [10] * 6, 1),
+        "->ant|vpg|1": fake_run(registry, "ant", "vpg", 1, [30] * 6, 1),
+    }
+    one = {
+        "a>hopper|mikt|0": fake_run(registry, "hopper", "mikt", 0, [30] * 6, 1),
+        "a>hopper|mikt|1": fake_run(registry, "hopper", "mikt", 1, [60] * 6, 1),
+        "a>hopper|mikt|2": fake_run(registry, "hopper", "mikt", 2, [999] * 6, 1),
+        "c>walker|mikt|0": fake_run(registry, "walker", "mikt", 0, [999] * 6, 1),  # not a two-teacher target
+    }
+    for name, cells in (("two", two), ("one", one)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "state.json").write_text(json.dumps(cells))
+        for run_id in cells.values():
+            shutil.copytree(registry / "runs" / run_id, tmp_path / name / "runs" / run_id)
+    shutil.rmtree(registry)  # the report needs the snapshots only
+
+    script = load_script("multi_teacher_report")
+    path = script.report(tmp_path / "two", load_grid(two_grid), tmp_path / "one", load_grid(one_grid),
+                         script.load_cat(cat_file), {"hopper": 0.0, "ant": 0.0}, "by hand", n_resamples=500,
+                         fall=(4096, 8192))
+    text = path.read_text()
+    rows = [line for line in text.splitlines() if line.startswith("| a+b → ")]
+    # CAT's estimator: iterations 1-2 (15, 35) and 5-6 (55, 75), the NaN iteration of seed 1 outside both
+    assert rows[0] == "| a+b → hopper | 2 | 25 ± 14 | 10 | 65 ± 14 | 50 |"
+    assert rows[1] == "| a+b → ant | 1 | 0 | — | 0 | — |"
+    # the study's estimator at 4096, 8192, 12288; the mean curve 15 → 30 over (15, 30, 30)
+    assert rows[2] == "| a+b → hopper | 2 | 15 ± 7 | 30 ± 14 | 70 ± 14 | 50 | +20 | yes | 15 → 30 (no fall; 15) |"
+    assert rows[3] == "| a+b → ant | 1 | 40 | 20 | 30 | — | — | — | 40 → 20 (falls; 10) |"
+    assert "Reaches CAT on **1 of 1** pairs" in text and "falls between 0.004096M and 0.008192M on 1" in text
+    assert "| hopper | 0.0 | 30 | 30 | 2 |" in text and "| ant | 0.0 | 20 | 20 | 2 |" in text
+    final = text.split("### Final return")[1].split("### Mean over training")[0]
+    # normalised final: two-teacher hopper 2, 2.67 and ant 1.5 (IQM of 3 trims nothing: 2.06); one-teacher
+    # hopper 1, 2; vpg 0.67, 1.33 and 0.5, 1.5 (IQM: the middle two, 1.00)
+    assert "| two-teacher mikt | 3 | 2 | hopper, ant | 2.06 [" in final
+    assert "| one-teacher mikt | 2 | 1 | hopper | 1.50 [" in final
+    assert "| vpg (from scratch) | 4 | 2 | hopper, ant | 1.00 [" in final
+    # per target: hopper (2, 2.67) against (1, 2) is 3.5 of 4; against vpg, hopper 1 and ant 0.75
+    versus = {line.split(" | ")[0][2:]: line for line in final.splitlines() if " vs " in line}
+    assert versus["two-teacher mikt vs one-teacher mikt"].startswith("| two-teacher mikt vs one-teacher mikt | 0.88 [")
+    assert versus["two-teacher mikt vs one-teacher mikt"].endswith("| hopper |")
+    assert versus["two-teacher mikt vs vpg (from scratch)"].endswith("] | hopper, ant |")
+    assert "| two-teacher mikt vs vpg (from scratch) | 0.88 [" in final
+    assert "| one-teacher mikt vs vpg (from scratch) | 0.75 [" in final  # 1 beats 0.67, loses to 1.33; 2 beats both
+    assert (tmp_path / "two" / "against-cat-profile.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_malformed_file_of_cat_figures_is_a_one_line_error(tmp_path):
+    bad = tmp_path / "cat.toml"
+    bad.write_text('windows = [[1, 2]]\n[[runs]]\nteachers = ["a"]\nto = "x"\nreturns = [1, 2]\n')
+    with pytest.raises(SystemExit, match="one return per window"):
+        load_script("multi_teacher_report").load_cat(bad)
+    bad.write_text("windows = [")
+    with pytest.raises(SystemExit, match="not a file of CAT's figures"):
+        load_script("multi_teacher_report").load_cat(bad)

@@ -36,8 +36,9 @@ def test_bad_grid_file(registry, tmp_path):
     assert r.exit_code == 1 and "field 'seeds'" in r.output
 
 
-def fake_run(registry, env, method, seed, curve, eval_return, mixing=None, teachers=()):
-    """A completed run with a given return curve (one point per 2048-step iteration)."""
+def fake_run(registry, env, method, seed, curve, eval_return, mixing=None, teachers=(), per_iteration=None):
+    """A completed run with a given return curve (one point per 2048-step iteration); `per_iteration`, where
+    given, is each iteration's mean return of the episodes that finished in it (`episode_return_iter`)."""
     from miktcli.ppo import PPOConfig
     from miktcli.registry.cards import RunConfig, TeacherRef
     from miktcli.registry.runs import create_run
@@ -47,7 +48,10 @@ def fake_run(registry, env, method, seed, curve, eval_return, mixing=None, teach
     run = create_run(registry, kind="transfer", env=env, method=method, seed=seed, total_steps=2048 * len(curve),
                      config=config, command="test", teachers=refs, code_version="test", packages={})
     for i, ret in enumerate(curve, start=1):
-        run.append_metrics({"iteration": i, "steps": 2048 * i, "return_mean": ret, **(mixing or {})})
+        row = {"iteration": i, "steps": 2048 * i, "return_mean": ret, **(mixing or {})}
+        if per_iteration is not None:
+            row["episode_return_iter"] = per_iteration[i - 1]
+        run.append_metrics(row)
     result = {"eval_without_teacher": {"return_mean": eval_return}}
     if mixing:
         result["final_mixing_learned"] = mixing

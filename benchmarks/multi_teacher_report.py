@@ -1,0 +1,333 @@
+"""Two-teacher MIKT against CAT's published runs, and across studies against one-teacher MIKT and PPO from
+scratch (issue 34), from the committed snapshots of two studies.
+
+    PYTHONPATH=src python benchmarks/multi_teacher_report.py benchmarks/results/multi-cat \\
+        [--one-teacher benchmarks/results/paper-2m/paper-2m] [--cat benchmarks/reference/cat-uai2022.toml] \\
+        [--random benchmarks/results/random-policy.json]
+
+- Pair by pair against CAT: our completed seeds with two estimators, the one of every study report (the mean
+  training return over the last 100 episodes at a mark) and CAT's (the mean of each update's `eprewmean`, our
+  `episode_return_iter`, over the updates in a window), next to CAT's figure for the same window; and whether
+  the seed-mean curve falls between 1M and 1.5M.
+- Across studies: every run's score normalised on its target between the random policy (0) and the mean of
+  PPO from scratch on that target (1, the two-teacher study's baseline); the IQM and mean with 95 % stratified
+  bootstrap intervals for two-teacher MIKT (this study), one-teacher MIKT (the one-teacher study's pairs on the
+  same targets) and PPO from scratch; the probability of improvement over the targets two families share; the
+  performance profiles (a figure). The one-teacher pairs are other tasks than the two-teacher pairs (one
+  teacher, not two), so the IQM strata are pairs and the probability of improvement is taken per target body.
+
+Writes `STUDY/against-cat.md` and `STUDY/against-cat-profile.png`; reads nothing from the registry.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from cross_study import snapshot_runs, teachers_of
+
+from miktcli import aggregate
+from miktcli.plots import png_performance_profiles
+from miktcli.registry.files import write_text_atomic
+from miktcli.registry.runs import Run
+from miktcli.studies.grid import Grid, load_grid
+from miktcli.studies.summary import MethodSummary, StudySummary, mean_pm_std, summarise
+
+ROOT = Path(__file__).resolve().parents[1]
+MEASURES = ("final return", "mean over training")
+FALL = (1_000_000, 1_500_000)  # the issue's "no fall between 1M and 1.5M on the mean curve"
+SEED = 0
+PROFILE_POINTS = 101
+PROFILE_RESAMPLES = 2_000
+
+Scores = dict[str, np.ndarray]  # stratum (a pair or a target) → one normalised score per run
+
+
+@dataclass(frozen=True)
+class CatRun:
+    teachers: tuple[str, ...]
+    to: str
+    returns: list[float]  # one per window
+
+
+@dataclass(frozen=True)
+class Cat:
+    estimator: str
+    windows: list[tuple[int, int]]
+    runs: list[CatRun]
+
+    def run_for(self, teachers: str, to: str) -> CatRun | None:
+        return next((r for r in self.runs if "+".join(r.teachers) == teachers and r.to == to), None)
+
+
+def load_cat(path: Path) -> Cat:
+    try:
+        doc = tomllib.loads(path.read_text())
+        windows = [(int(lo), int(hi)) for lo, hi in doc["windows"]]
+        runs = [CatRun(tuple(r["teachers"]), r["to"], [float(x) for x in r["returns"]]) for r in doc["runs"]]
+    except (OSError, tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as e:
+        raise SystemExit(f"Error: {path}: not a file of CAT's figures ({e})") from None
+    if any(len(r.returns) != len(windows) for r in runs):
+        raise SystemExit(f"Error: {path}: every run needs one return per window ({len(windows)})")
+    return Cat(str(doc.get("estimator", "")), windows, runs)
+
+
+def window_mean(run: Run, low: int, high: int) -> float:
+    """CAT's estimator on one run: the mean of the per-iteration return of the episodes that finished in that
+    iteration, over the iterations logged between `low` and `high` steps (iterations where none finished
+    have no such return and are skipped, as CAT's logs have none). NaN where the window holds none."""
+    values = [row["episode_return_iter"] for row in run.read_metrics()
+              if low <= row["steps"] <= high and row.get("episode_return_iter") is not None]
+    finite = [v for v in values if np.isfinite(v)]
+    return float(np.mean(finite)) if finite else float("nan")
+
+
+def at_step(m: MethodSummary, step: int) -> float:
+    """The seed-mean curve at the last iteration at or before `step` (NaN before the first)."""
+    i = int(np.searchsorted(m.steps, step, side="right")) - 1
+    return float(m.mean[i]) if i >= 0 else float("nan")
+
+
+def method_of(summary: StudySummary, pair_name: str, method: str) -> MethodSummary:
+    pair = next(p for p in summary.pairs if p.name == pair_name)
+    return next(m for m in pair.methods if m.name == method)
+
+
+def _fmt(value: float) -> str:
+    return "—" if not np.isfinite(value) else f"{value:,.0f}"
+
+
+def _pm(values: list[float]) -> str:
+    finite = [v for v in values if np.isfinite(v)]
+    return mean_pm_std(np.array(finite)) if finite else "—"
+
+
+def _window_label(window: tuple[int, int]) -> str:
+    return f"{window[0] / 1e6:g}–{window[1] / 1e6:g}M"
+
+
+def cat_lines(grid: Grid, summary: StudySummary, cat: Cat, method: str,
+              fall: tuple[int, int] = FALL) -> list[str]:
+    marks = [m for m in grid.marks if m <= grid.steps]
+    head = ["teachers → target", "n", *(f"{who} {_window_label(w)}" for w in cat.windows for who in ("ours", "CAT"))]
+    windows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    end = ["| teachers → target | n | " + " | ".join(f"ours at {m / 1e6:g}M" for m in marks)
+           + f" | CAT {_window_label(cat.windows[-1])} | ours − CAT at {grid.steps / 1e6:g}M | reaches CAT | "
+           f"mean curve {fall[0] / 1e6:g}M → {fall[1] / 1e6:g}M (lowest between) |",
+           "|" + "---|" * (len(marks) + 6)]
+    reached, compared, falls = 0, 0, 0
+    for pair in grid.pairs:
+        m = method_of(summary, pair.name, method)
+        ref = cat.run_for(teachers_of(pair), pair.to)
+        cat_cells = [_fmt(x) for x in ref.returns] if ref else ["—"] * len(cat.windows)
+        ours = [_pm([window_mean(r, lo, hi) for r in m.runs]) for lo, hi in cat.windows]
+        windows.append(f"| {pair.name} | {m.n} | "
+                       + " | ".join(c for pair_cells in zip(ours, cat_cells, strict=True) for c in pair_cells) + " |")
+        if not m.runs:
+            end.append(f"| {pair.name} | 0 | " + " | ".join(["—"] * len(marks) + [cat_cells[-1], "—", "—", "—"])
+                       + " |")
+            continue
+        at_marks = [mean_pm_std(m.curves[:, i]) if (i := int(np.searchsorted(m.steps, mark, "right")) - 1) >= 0
+                    else "—" for mark in marks]
+        final = float(np.mean(m.curves[:, -1]))
+        verdict, gap = "—", "—"
+        if ref:
+            compared += 1
+            gap = f"{final - ref.returns[-1]:+,.0f}"
+            verdict = "yes" if final >= ref.returns[-1] else "no"
+            reached += final >= ref.returns[-1]
+        start, stop = at_step(m, fall[0]), at_step(m, fall[1])
+        between = m.mean[(m.steps >= fall[0]) & (m.steps <= fall[1])]
+        fell = stop < start
+        falls += fell
+        trend = (f"{_fmt(start)} → {_fmt(stop)} ({'falls' if fell else 'no fall'}; "
+                 f"{_fmt(float(np.min(between))) if between.size else '—'})")
+        end.append(f"| {pair.name} | {m.n} | " + " | ".join(at_marks) + f" | {cat_cells[-1]} | {gap} | {verdict} | "
+                   f"{trend} |")
+    done = [p for p in grid.pairs if method_of(summary, p.name, method).n]
+    full = all(method_of(summary, p.name, method).n == len(grid.seeds) for p in grid.pairs)
+    return [
+        "## Against CAT, pair by pair", "",
+        f"`{method}` of `{grid.name}`, completed seeds only (n of the grid's {len(grid.seeds)}). CAT: 1 seed per "
+        f"run, {cat.estimator}.", "",
+        "**CAT's estimator.** Ours: each run's `episode_return_iter` (the mean return of the episodes that "
+        "finished in that 2,048-step rollout, which is CAT's `eprewmean`) averaged over the iterations in the "
+        "window, then mean ± sample std (ddof 1) over seeds.", "", *windows, "",
+        "**The study's estimator, and the issue's test.** Ours: the mean training return over the last 100 "
+        "episodes at each mark (the last iteration at or before it), mean ± sample std over seeds. \"Reaches "
+        f"CAT\": the seed mean at {grid.steps / 1e6:g}M is at least CAT's {_window_label(cat.windows[-1])} "
+        f"figure. The last column is the seed-mean curve at {fall[0] / 1e6:g}M and {fall[1] / 1e6:g}M and its "
+        "lowest value between them.", "", *end, "",
+        f"Reaches CAT on **{reached} of {compared}** pairs with completed seeds ({len(done)} of {len(grid.pairs)} "
+        f"pairs have any); the mean curve falls between {fall[0] / 1e6:g}M and {fall[1] / 1e6:g}M on {falls}. "
+        + ("Every pair has all its seeds." if full else
+           "Not every pair has all the grid's seeds yet: these are partial results."), ""]
+
+
+@dataclass(frozen=True)
+class Family:
+    """One curve of the across-studies section: a method of a study, on some of its pairs."""
+
+    label: str
+    summary: StudySummary
+    method: str
+    pairs: list[str]
+    target_of: dict[str, str]
+
+
+def scales(random: dict[str, float], baseline: MethodSummary | None, target: str) -> dict[str, tuple[float, float]]:
+    """measure → (R_random, R_reference) on one target; empty where the baseline has no run or no scale."""
+    if baseline is None or not baseline.runs or target not in random:
+        return {}
+    out = {}
+    for measure in MEASURES:
+        values = baseline.per_seed[measure]
+        ref = float(np.mean(values[np.isfinite(values)])) if np.isfinite(values).any() else float("nan")
+        if np.isfinite(ref) and ref > random[target]:
+            out[measure] = (random[target], ref)
+    return out
+
+
+def family_scores(family: Family, measure: str, scale: dict[str, dict[str, tuple[float, float]]],
+                  by: str) -> Scores:
+    """The family's normalised runs, grouped by pair or by target (`by`)."""
+    scores: dict[str, list[np.ndarray]] = {}
+    for pair in family.pairs:
+        target = family.target_of[pair]
+        m = method_of(family.summary, pair, family.method)
+        values = m.per_seed[measure] if m.runs else np.zeros(0)
+        values = values[np.isfinite(values)]
+        if not values.size or measure not in scale.get(target, {}):
+            continue
+        scores.setdefault(pair if by == "pair" else target, []).append(
+            aggregate.normalized(values, *scale[target][measure]))
+    return {key: np.concatenate(parts) for key, parts in scores.items()}
+
+
+def _estimate(e: aggregate.Estimate) -> str:
+    return f"{e.value:.2f} [{e.low:.2f}, {e.high:.2f}]"
+
+
+def across_lines(families: list[Family], baseline_of: dict[str, MethodSummary | None], random: dict[str, float],
+                 random_source: str, n_resamples: int, out_dir: Path) -> list[str]:
+    targets = list(dict.fromkeys(t for f in families for t in f.target_of.values()))
+    scale = {t: scales(random, baseline_of.get(t), t) for t in targets}
+    lines = ["## Across studies: two teachers, one teacher, none", "",
+             "Each run's score is normalised on its target, `(R − R_random) / (R_ppo − R_random)`: 0 is the "
+             f"random policy (`{random_source}`), 1 the mean of PPO from scratch on that target at the same budget. "
+             "The IQM (25 % trimmed mean over all runs × pairs pooled) and the mean come with 95 % percentile "
+             "stratified bootstrap intervals (runs resampled within each pair; "
+             f"{n_resamples:,} resamples, seed {SEED}). The one-teacher pairs are other tasks than the two-teacher "
+             "pairs, so P(X > Y), the chance that a run of X beats a run of Y on the same target (Mann–Whitney "
+             "U / (n_x n_y)), is taken per target body, pooling a family's pairs on it, and averaged over the "
+             "targets both families have.", "",
+             "| target | R_random | PPO: final return | PPO: mean over training | PPO runs |", "|---|---|---|---|---|"]
+    for t in targets:
+        base = baseline_of.get(t)
+        refs = [_fmt(scale[t][m][1]) if m in scale[t] else "—" for m in MEASURES]
+        lines.append(f"| {t} | {random[t]:,.1f} | " if t in random else f"| {t} | — | ")
+        lines[-1] += " | ".join(refs) + f" | {base.n if base else 0} |"
+    lines.append("")
+    profiles = {}
+    for measure in MEASURES:
+        by_pair = {f.label: family_scores(f, measure, scale, "pair") for f in families}
+        by_target = {f.label: family_scores(f, measure, scale, "target") for f in families}
+        lines += [f"### {measure[0].upper() + measure[1:]}", "",
+                  "| family | runs | pairs | targets | IQM [95 % CI] | mean [95 % CI] |", "|---|---|---|---|---|---|"]
+        for f in families:
+            scores = by_pair[f.label]
+            if not scores:
+                lines.append(f"| {f.label} | 0 | 0 | — | — | — |")
+                continue
+            runs = sum(v.size for v in scores.values())
+            lines.append(f"| {f.label} | {runs} | {len(scores)} | {', '.join(by_target[f.label])} | "
+                         f"{_estimate(aggregate.iqm_estimate(scores, n_resamples, SEED))} | "
+                         f"{_estimate(aggregate.mean_estimate(scores, n_resamples, SEED))} |")
+        lines += ["", "| X vs Y | P(X > Y) [95 % CI] | targets |", "|---|---|---|"]
+        for i, x in enumerate(families):
+            for y in families[i + 1:]:
+                shared = [t for t in by_target[x.label] if t in by_target[y.label]]
+                if not shared:
+                    lines.append(f"| {x.label} vs {y.label} | — (no shared target) | 0 |")
+                    continue
+                e = aggregate.probability_of_improvement_estimate(by_target[x.label], by_target[y.label],
+                                                                  n_resamples, SEED)
+                lines.append(f"| {x.label} vs {y.label} | {_estimate(e)} | {', '.join(shared)} |")
+        lines.append("")
+        if measure == MEASURES[0]:
+            profiles = {label: s for label, s in by_pair.items() if s}
+    if profiles:
+        top = max(float(np.max(np.concatenate(list(s.values())))) for s in profiles.values())
+        taus = np.linspace(0.0, max(top, 1.0) * 1.05, PROFILE_POINTS)
+        drawn = {}
+        for label, scores in profiles.items():
+            point, low, high = aggregate.performance_profile_estimate(scores, taus, PROFILE_RESAMPLES, SEED)
+            drawn[label] = (taus.tolist(), point.tolist(), low.tolist(), high.tolist())
+        png_performance_profiles(drawn, out_dir / "against-cat-profile.png",
+                                 f"performance profiles ({MEASURES[0]}, normalised; 95 % bands)")
+        lines += ["![performance profiles](against-cat-profile.png)", ""]
+    return lines
+
+
+def report(study: Path, grid: Grid, one_study: Path, one_grid: Grid, cat: Cat, random: dict[str, float],
+           random_source: str, method: str = "mikt", n_resamples: int = aggregate.RESAMPLES,
+           fall: tuple[int, int] = FALL) -> Path:
+    """The report, every family on the two-teacher grid's seeds (so every figure averages the same seeds)."""
+    summary = summarise(grid, json.loads((study / "state.json").read_text()), snapshot_runs(study))
+    one_grid = one_grid.model_copy(update={"seeds": grid.seeds})
+    one = summarise(one_grid, json.loads((one_study / "state.json").read_text()), snapshot_runs(one_study))
+    targets = list(dict.fromkeys(p.to for p in grid.pairs))
+    baseline_of: dict[str, MethodSummary | None] = {}
+    for pair in grid.pairs:  # PPO from scratch: its runs are the same for every pair of a target
+        m = method_of(summary, pair.name, grid.baseline)
+        if m.runs and pair.to not in baseline_of:
+            baseline_of[pair.to] = m
+    one_pairs = [p for p in one_grid.pairs if p.to in targets and len(p.teachers) == 1]
+    families = [
+        Family(f"two-teacher {method}", summary, method, [p.name for p in grid.pairs],
+               {p.name: p.to for p in grid.pairs}),
+        Family(f"one-teacher {method}", one, method, [p.name for p in one_pairs], {p.name: p.to for p in one_pairs}),
+        Family(f"{grid.baseline} (from scratch)", summary, grid.baseline,
+               [next(p.name for p in grid.pairs if p.to == t) for t in targets], {p.name: p.to for p in grid.pairs}),
+    ]
+    lines = [f"# {grid.name}: two-teacher MIKT against CAT, one-teacher MIKT and PPO from scratch", "",
+             f"Made by `benchmarks/multi_teacher_report.py` from the snapshots of `{grid.name}` and "
+             f"`{one_grid.name}` (one-teacher pairs on the same targets: "
+             f"{', '.join(p.name for p in one_pairs) or 'none'}), seeds {grid.seeds} of both.", "",
+             *cat_lines(grid, summary, cat, method, fall),
+             *across_lines(families, baseline_of, random, random_source, n_resamples, study)]
+    left_out = summary.left_out + one.left_out
+    if left_out:
+        lines += ["Left out (files incomplete): " + "; ".join(left_out), ""]
+    path = study / "against-cat.md"
+    write_text_atomic(path, "\n".join(lines))
+    return path
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("study", type=Path, help="the two-teacher study's results folder (state.json, runs/)")
+    parser.add_argument("--grid", type=Path, help="its grid (default: benchmarks/grids/FOLDER-NAME.toml)")
+    parser.add_argument("--one-teacher", type=Path, default=ROOT / "benchmarks" / "results" / "paper-2m" / "paper-2m",
+                        help="the one-teacher study's results folder")
+    parser.add_argument("--one-teacher-grid", type=Path, help="its grid (default: by its folder's name)")
+    parser.add_argument("--cat", type=Path, default=ROOT / "benchmarks" / "reference" / "cat-uai2022.toml")
+    parser.add_argument("--random", type=Path, default=ROOT / "benchmarks" / "results" / "random-policy.json")
+    parser.add_argument("--method", default="mikt")
+    args = parser.parse_args()
+    grids = ROOT / "benchmarks" / "grids"
+    grid = load_grid(args.grid or grids / f"{args.study.name}.toml")
+    one_grid = load_grid(args.one_teacher_grid or grids / f"{args.one_teacher.name}.toml")
+    random = {t: v["return_mean"] for t, v in json.loads(args.random.read_text())["targets"].items()}
+    source = args.random.resolve()  # named in the report: relative to the checkout, never this machine's path
+    source = source.relative_to(ROOT) if source.is_relative_to(ROOT) else source
+    print(report(args.study, grid, args.one_teacher, one_grid, load_cat(args.cat), random, str(source),
+                 args.method))
+
+
+if __name__ == "__main__":
+    main()
