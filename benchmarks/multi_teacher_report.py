@@ -268,7 +268,8 @@ def across_lines(families: list[Family], baseline_of: dict[str, MethodSummary | 
             point, low, high = aggregate.performance_profile_estimate(scores, taus, PROFILE_RESAMPLES, SEED)
             drawn[label] = (taus.tolist(), point.tolist(), low.tolist(), high.tolist())
         png_performance_profiles(drawn, out_dir / "against-cat-profile.png",
-                                 f"performance profiles ({MEASURES[0]}, normalised; 95 % bands)")
+                                 f"performance profiles ({MEASURES[0]}, normalised; 95 % bands)",
+                                 order=[f.label for f in families])  # each family keeps its colour as runs arrive
         lines += ["![performance profiles](against-cat-profile.png)", ""]
     return lines
 

@@ -113,10 +113,11 @@ def png_panels(panels: list[tuple[Series, str, Bands | None]], path: Path, ylabe
 
 def png_performance_profiles(profiles: Mapping[str, tuple[Sequence[float], Sequence[float], Sequence[float],
                                                           Sequence[float]]],
-                             path: Path, title: str, xlabel: str = "normalised score τ") -> Path:
+                             path: Path, title: str, xlabel: str = "normalised score τ",
+                             order: Sequence[str] = ()) -> Path:
     """Performance profiles (Agarwal et al. 2021): per method (thresholds, fraction above, band low, band high),
-    one curve each with its bootstrap band, in one PNG."""
+    one curve each with its bootstrap band, in one PNG; colours by name, `order` first (default: as given)."""
     series = {name: list(zip(taus, point, strict=True)) for name, (taus, point, _, _) in profiles.items()}
     bands = {name: list(zip(taus, low, high, strict=True)) for name, (taus, _, low, high) in profiles.items()}
-    return png_panels([(series, title, bands)], path, "fraction of runs with score > τ", order=list(profiles),
+    return png_panels([(series, title, bands)], path, "fraction of runs with score > τ", order=order or list(profiles),
                       xlabel=xlabel)
