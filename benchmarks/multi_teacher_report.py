@@ -8,7 +8,8 @@ scratch (issue 34), from the committed snapshots of two studies.
 - Pair by pair against CAT: our completed seeds with two estimators, the one of every study report (the mean
   training return over the last 100 episodes at a mark) and CAT's (the mean of each update's `eprewmean`, our
   `episode_return_iter`, over the updates in a window), next to CAT's figure for the same window; and whether
-  the seed-mean curve falls between 1M and 1.5M.
+  the seed-mean curve falls between 1M and 1.5M; and what each run's return does when the schedule drops the
+  teachers (the smallest student weight then, the return there, after and at the end).
 - Across studies: every run's score normalised on its target between the random policy (0) and the mean of
   PPO from scratch on that target (1, the two-teacher study's baseline); the IQM and mean with 95 % stratified
   bootstrap intervals for two-teacher MIKT (this study), one-teacher MIKT (the one-teacher study's pairs on the
@@ -169,6 +170,61 @@ def cat_lines(grid: Grid, summary: StudySummary, cat: Cat, method: str,
 
 
 @dataclass(frozen=True)
+class HandOver:
+    """One run at the teacher drop: the last iteration with the teachers, and what follows it."""
+
+    step: int
+    lowest_weight: float  # the smallest student weight p over the layers of policy and value
+    at_drop: float  # the study's estimator (the last 100 episodes) at that iteration
+    lowest_after: float
+    at_end: float
+
+
+def hand_over(run: Run) -> HandOver | None:
+    """Where the run drops its teachers (None: it never trained with them, or never dropped them)."""
+    rows = run.read_metrics()
+    coupled = [i for i, row in enumerate(rows) if row.get("teacher_active") == 1.0]
+    if not coupled or coupled[-1] == len(rows) - 1:
+        return None
+    last, after = rows[coupled[-1]], rows[coupled[-1] + 1:]
+    weights = [v for k, v in last.items() if k.startswith(("p_pi_", "p_vf_")) and v is not None]
+    returns = [row["return_mean"] for row in after if row.get("return_mean") is not None]
+    if not weights or not returns or last.get("return_mean") is None:
+        return None
+    return HandOver(last["steps"], min(weights), last["return_mean"], min(returns), returns[-1])
+
+
+def hand_over_lines(grid: Grid, summary: StudySummary, method: str) -> list[str]:
+    lines = ["## The hand-over at the teacher drop", "",
+             f"`{method}`'s completed runs at the last iteration that trained with the teachers: the smallest "
+             "student weight p over the layers of policy and value (1: the teachers unused), and the return "
+             "(last 100 episodes) there, at its lowest after the drop and at the end; mean ± sample std over "
+             "seeds. A student that still leans on its teachers when they go loses what they gave.", "",
+             "| teachers → target | n | drop at | smallest p at the drop | return at the drop | lowest after | "
+             "at the end | teacher-free eval at the end |", "|---|---|---|---|---|---|---|---|"]
+    for pair in grid.pairs:
+        m = method_of(summary, pair.name, method)
+        found = [(h, e) for h, e in zip(map(hand_over, m.runs), m.evals, strict=True) if h is not None]
+        if not found:
+            lines.append(f"| {pair.name} | 0 | — | — | — | — | — | — |")
+            continue
+        steps = sorted({h.step for h, _ in found})
+        drop = ", ".join(f"{s:,}" for s in steps)
+        lines.append(f"| {pair.name} | {len(found)} | {drop} | "
+                     f"{_pm2([h.lowest_weight for h, _ in found])} | {_pm([h.at_drop for h, _ in found])} | "
+                     f"{_pm([h.lowest_after for h, _ in found])} | {_pm([h.at_end for h, _ in found])} | "
+                     f"{_pm([float(e) for _, e in found])} |")
+    return [*lines, ""]
+
+
+def _pm2(values: list[float]) -> str:
+    """mean ± sample std with two decimals (weights)."""
+    if len(values) == 1:
+        return f"{values[0]:.2f}"
+    return f"{np.mean(values):.2f} ± {np.std(values, ddof=1):.2f}"
+
+
+@dataclass(frozen=True)
 class Family:
     """One curve of the across-studies section: a method of a study, on some of its pairs."""
 
@@ -300,6 +356,7 @@ def report(study: Path, grid: Grid, one_study: Path, one_grid: Grid, cat: Cat, r
              f"`{one_grid.name}` (one-teacher pairs on the same targets: "
              f"{', '.join(p.name for p in one_pairs) or 'none'}), seeds {grid.seeds} of both.", "",
              *cat_lines(grid, summary, cat, method, fall),
+             *hand_over_lines(grid, summary, method),
              *across_lines(families, baseline_of, random, random_source, n_resamples, study)]
     left_out = summary.left_out + one.left_out
     if left_out:

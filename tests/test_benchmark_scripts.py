@@ -286,13 +286,18 @@ def test_multi_teacher_report_against_cat_and_across_studies_by_hand(registry, t
         pairs='[[pairs]]\nfrom = ["a"]\nto = "hopper"\n[[pairs]]\nfrom = ["c"]\nto = "walker"\n'))
     cat_file.write_text('estimator = "by hand"\nwindows = [[2048, 4096], [10240, 12288]]\n'
                         '[[runs]]\nteachers = ["a", "b"]\nto = "hopper"\nreturns = [10, 50]\n')
+    def rows(per_iteration, p_pi, p_vf):  # teachers for four iterations, dropped for the last two
+        return [{"episode_return_iter": r, "teacher_active": float(i < 4), "p_pi_0": p_pi, "p_vf_0": p_vf}
+                for i, r in enumerate(per_iteration)]
+
     two = {
         "a+b>hopper|mikt|0": fake_run(registry, "hopper", "mikt", 0, [0, 20, 30, 40, 50, 60], 1,
-                                      per_iteration=[10, 20, 30, 40, 50, 60]),
+                                      per_row=rows([10, 20, 30, 40, 50, 60], 0.8, 0.9)),
         "a+b>hopper|mikt|1": fake_run(registry, "hopper", "mikt", 1, [0, 10, 30, 20, 40, 80], 1,
-                                      per_iteration=[30, 40, float("nan"), 60, 70, 80]),
+                                      per_row=rows([30, 40, float("nan"), 60, 70, 80], 0.7, 0.6)),
         "a+b>ant|mikt|0": fake_run(registry, "ant", "mikt", 0, [0, 40, 10, 20, 30, 30], 1,
-                                   per_iteration=[0] * 6),  # falls between 4096 and 8192; seed 1 unfinished
+                                   per_row=[{"episode_return_iter": 0}] * 6),  # falls between 4096 and 8192;
+        # seed 1 unfinished; it logs no teacher_active: no hand-over
         "->hopper|vpg|0": fake_run(registry, "hopper", "vpg", 0, [20] * 6, 1),
         "->hopper|vpg|1": fake_run(registry, "hopper", "vpg", 1, [40] * 6, 1),
         "->ant|vpg|0": fake_run(registry, "ant", "vpg", 0, [10] * 6, 1),
@@ -323,6 +328,9 @@ def test_multi_teacher_report_against_cat_and_across_studies_by_hand(registry, t
     # the study's estimator at 4096, 8192, 12288; the mean curve 15 → 30 over (15, 30, 30)
     assert rows[2] == "| a+b → hopper | 2 | 15 ± 7 | 30 ± 14 | 70 ± 14 | 50 | +20 | yes | 15 → 30 (no fall; 15) |"
     assert rows[3] == "| a+b → ant | 1 | 40 | 20 | 30 | — | — | — | 40 → 20 (falls; 10) |"
+    # the hand-over: the last coupled iteration is at 8192 steps (returns 40, 20), then (50, 60) and (40, 80)
+    assert "| a+b → hopper | 2 | 8,192 | 0.70 ± 0.14 | 30 ± 14 | 45 ± 7 | 70 ± 14 | 1 ± 0 |" in text
+    assert "| a+b → ant | 0 | — | — | — | — | — | — |" in text
     assert "Reaches CAT on **1 of 1** pairs" in text and "falls between 0.004096M and 0.008192M on 1" in text
     assert "| hopper | 0.0 | 30 | 30 | 2 |" in text and "| ant | 0.0 | 20 | 20 | 2 |" in text
     final = text.split("### Final return")[1].split("### Mean over training")[0]

@@ -36,9 +36,9 @@ def test_bad_grid_file(registry, tmp_path):
     assert r.exit_code == 1 and "field 'seeds'" in r.output
 
 
-def fake_run(registry, env, method, seed, curve, eval_return, mixing=None, teachers=(), per_iteration=None):
-    """A completed run with a given return curve (one point per 2048-step iteration); `per_iteration`, where
-    given, is each iteration's mean return of the episodes that finished in it (`episode_return_iter`)."""
+def fake_run(registry, env, method, seed, curve, eval_return, mixing=None, teachers=(), per_row=None):
+    """A completed run with a given return curve (one point per 2048-step iteration); `per_row`, where given,
+    holds more metrics for each iteration (one dict each)."""
     from miktcli.ppo import PPOConfig
     from miktcli.registry.cards import RunConfig, TeacherRef
     from miktcli.registry.runs import create_run
@@ -49,8 +49,7 @@ def fake_run(registry, env, method, seed, curve, eval_return, mixing=None, teach
                      config=config, command="test", teachers=refs, code_version="test", packages={})
     for i, ret in enumerate(curve, start=1):
         row = {"iteration": i, "steps": 2048 * i, "return_mean": ret, **(mixing or {})}
-        if per_iteration is not None:
-            row["episode_return_iter"] = per_iteration[i - 1]
+        row.update(per_row[i - 1] if per_row is not None else {})
         run.append_metrics(row)
     result = {"eval_without_teacher": {"return_mean": eval_return}}
     if mixing:
