@@ -9,7 +9,9 @@ scratch (issue 34), from the committed snapshots of two studies.
   training return over the last 100 episodes at a mark) and CAT's (the mean of each update's `eprewmean`, our
   `episode_return_iter`, over the updates in a window), next to CAT's figure for the same window; and whether
   the seed-mean curve falls between 1M and 1.5M; and what each run's return does when the schedule drops the
-  teachers (the smallest student weight then, the return there, after and at the end).
+  teachers (the smallest student weight then, the return there, after and at the end), and beside CAT's logs
+  across the same drop (the student weight averaged over each branch's layers, the per-update return before
+  and after).
 - Across studies: every run's score normalised on its target between the random policy (0) and the mean of
   PPO from scratch on that target (1, the two-teacher study's baseline); the IQM and mean with 95 % stratified
   bootstrap intervals for two-teacher MIKT (this study), one-teacher MIKT (the one-teacher study's pairs on the
@@ -49,10 +51,24 @@ Scores = dict[str, np.ndarray]  # stratum (a pair or a target) → one normalise
 
 
 @dataclass(frozen=True)
+class AcrossDrop:
+    """A run across its teacher drop, measured as CAT's logs allow: the student weight p at the last update with
+    the teachers, averaged over the layers of each branch (CAT logs the mean), and the mean per-update return
+    (`eprewmean`) over a window up to the drop and over everything after it."""
+
+    drop: int
+    p_pi: float
+    p_vf: float
+    before: float
+    after: float
+
+
+@dataclass(frozen=True)
 class CatRun:
     teachers: tuple[str, ...]
     to: str
     returns: list[float]  # one per window
+    hand_over: AcrossDrop | None = None
 
 
 @dataclass(frozen=True)
@@ -60,6 +76,7 @@ class Cat:
     estimator: str
     windows: list[tuple[int, int]]
     runs: list[CatRun]
+    hand_over_before: int | None = None  # steps: the window up to the drop that `before` averages
 
     def run_for(self, teachers: str, to: str) -> CatRun | None:
         return next((r for r in self.runs if "+".join(r.teachers) == teachers and r.to == to), None)
@@ -69,12 +86,23 @@ def load_cat(path: Path) -> Cat:
     try:
         doc = tomllib.loads(path.read_text())
         windows = [(int(lo), int(hi)) for lo, hi in doc["windows"]]
-        runs = [CatRun(tuple(r["teachers"]), r["to"], [float(x) for x in r["returns"]]) for r in doc["runs"]]
+        runs = [CatRun(tuple(r["teachers"]), r["to"], [float(x) for x in r["returns"]], _across_drop(r))
+                for r in doc["runs"]]
+        before = int(doc["hand_over_before"]) if "hand_over_before" in doc else None
     except (OSError, tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as e:
         raise SystemExit(f"Error: {path}: not a file of CAT's figures ({e})") from None
     if any(len(r.returns) != len(windows) for r in runs):
         raise SystemExit(f"Error: {path}: every run needs one return per window ({len(windows)})")
-    return Cat(str(doc.get("estimator", "")), windows, runs)
+    if before is None and any(r.hand_over for r in runs):
+        raise SystemExit(f"Error: {path}: runs give a hand_over but the file has no hand_over_before (steps)")
+    return Cat(str(doc.get("estimator", "")), windows, runs, before)
+
+
+def _across_drop(doc: dict) -> AcrossDrop | None:
+    h = doc.get("hand_over")
+    if h is None:
+        return None
+    return AcrossDrop(int(h["drop"]), float(h["p_pi"]), float(h["p_vf"]), float(h["before"]), float(h["after"]))
 
 
 def window_mean(run: Run, low: int, high: int) -> float:
@@ -180,13 +208,18 @@ class HandOver:
     at_end: float
 
 
+def _last_coupled(rows: list[dict]) -> int | None:
+    """The index of the last iteration that trained with the teachers (None: never, or never dropped them)."""
+    coupled = [i for i, row in enumerate(rows) if row.get("teacher_active") == 1.0]
+    return coupled[-1] if coupled and coupled[-1] < len(rows) - 1 else None
+
+
 def hand_over(run: Run) -> HandOver | None:
     """Where the run drops its teachers (None: it never trained with them, or never dropped them)."""
     rows = run.read_metrics()
-    coupled = [i for i, row in enumerate(rows) if row.get("teacher_active") == 1.0]
-    if not coupled or coupled[-1] == len(rows) - 1:
+    if (i := _last_coupled(rows)) is None:
         return None
-    last, after = rows[coupled[-1]], rows[coupled[-1] + 1:]
+    last, after = rows[i], rows[i + 1:]
     weights = [v for k, v in last.items() if k.startswith(("p_pi_", "p_vf_")) and v is not None]
     returns = [row["return_mean"] for row in after if row.get("return_mean") is not None]
     if not weights or not returns or last.get("return_mean") is None:
@@ -215,6 +248,60 @@ def hand_over_lines(grid: Grid, summary: StudySummary, method: str) -> list[str]
                      f"{_pm([h.lowest_after for h, _ in found])} | {_pm([h.at_end for h, _ in found])} | "
                      f"{_pm([float(e) for _, e in found])} |")
     return [*lines, ""]
+
+
+def across_drop(run: Run, before: int) -> AcrossDrop | None:
+    """Our run measured like CAT's logs at the drop (see AcrossDrop); None where it never dropped its teachers."""
+    rows = run.read_metrics()
+    if (i := _last_coupled(rows)) is None:
+        return None
+    last = rows[i]
+    drop = last["steps"]
+
+    def branch_mean(prefix: str) -> float:
+        weights = [v for k, v in last.items() if k.startswith(prefix) and v is not None]
+        return float(np.mean(weights)) if weights else float("nan")
+
+    return AcrossDrop(drop, branch_mean("p_pi_"), branch_mean("p_vf_"), window_mean(run, drop - before + 1, drop),
+                      window_mean(run, drop + 1, rows[-1]["steps"]))
+
+
+def across_drop_lines(grid: Grid, summary: StudySummary, cat: Cat, method: str) -> list[str]:
+    """Ours beside CAT at the drop, with the measures CAT's logs have."""
+    if cat.hand_over_before is None:
+        return []
+    before = cat.hand_over_before
+    lines = ["**Across the drop, as CAT's logs measure it.** The student weight p at the last update with the "
+             "teachers, averaged over the hidden layers of the policy (π) and of the value function (V): CAT logs "
+             "that mean (`student_ps`, `vf_student_ps`). The return: the mean per-update return (`eprewmean`, "
+             f"our `episode_return_iter`) over the {before:,} steps up to the drop and over every update after it; "
+             "the change is after − before per run. Ours: mean ± sample std over seeds; CAT: 1 seed.", "",
+             "| teachers → target | n | ours p π / V | CAT p π / V | ours before → after | ours change | "
+             "runs that fall | CAT before → after | CAT change |", "|---|---|---|---|---|---|---|---|---|"]
+    for pair in grid.pairs:
+        m = method_of(summary, pair.name, method)
+        ours = [h for h in (across_drop(r, before) for r in m.runs) if h is not None]
+        ref = cat.run_for(teachers_of(pair), pair.to)
+        c = ref.hand_over if ref else None
+        cat_cells = ([f"{c.p_pi:.2f} / {c.p_vf:.2f}", f"{_fmt(c.before)} → {_fmt(c.after)}",
+                      f"{c.after - c.before:+,.0f}"] if c else ["—"] * 3)
+        if ours:
+            change = [h.after - h.before for h in ours]
+            our_cells = [f"{_pm2([h.p_pi for h in ours])} / {_pm2([h.p_vf for h in ours])}",
+                         f"{_pm([h.before for h in ours])} → {_pm([h.after for h in ours])}",
+                         _signed_pm(change), f"{sum(d < 0 for d in change)} of {len(change)}"]
+        else:
+            our_cells = ["—"] * 4
+        lines.append(f"| {pair.name} | {len(ours)} | {our_cells[0]} | {cat_cells[0]} | {our_cells[1]} | "
+                     f"{our_cells[2]} | {our_cells[3]} | {cat_cells[1]} | {cat_cells[2]} |")
+    return [*lines, ""]
+
+
+def _signed_pm(values: list[float]) -> str:
+    """mean ± sample std of changes, signed."""
+    if len(values) == 1:
+        return f"{values[0]:+,.0f}"
+    return f"{np.mean(values):+,.0f} ± {np.std(values, ddof=1):,.0f}"
 
 
 def _pm2(values: list[float]) -> str:
@@ -357,6 +444,7 @@ def report(study: Path, grid: Grid, one_study: Path, one_grid: Grid, cat: Cat, r
              f"{', '.join(p.name for p in one_pairs) or 'none'}), seeds {grid.seeds} of both.", "",
              *cat_lines(grid, summary, cat, method, fall),
              *hand_over_lines(grid, summary, method),
+             *across_drop_lines(grid, summary, cat, method),
              *across_lines(families, baseline_of, random, random_source, n_resamples, study)]
     left_out = summary.left_out + one.left_out
     if left_out:
