@@ -8,7 +8,8 @@ scratch (issue 34), from the committed snapshots of two studies.
 - Pair by pair against CAT: our completed seeds with two estimators, the one of every study report (the mean
   training return over the last 100 episodes at a mark) and CAT's (the mean of each update's `eprewmean`, our
   `episode_return_iter`, over the updates in a window), next to CAT's figure for the same window; and whether
-  the seed-mean curve falls between 1M and 1.5M; and what each run's return does when the schedule drops the
+  the seed-mean curve falls between 1M and 1.5M; each branch's student weight at marks inside the coupling
+  ramp beside CAT's; and what each run's return does when the schedule drops the
   teachers (the smallest student weight then, the return there, after and at the end), and beside CAT's logs
   across the same drop (the student weight averaged over each branch's layers, the per-update return before
   and after).
@@ -69,6 +70,7 @@ class CatRun:
     to: str
     returns: list[float]  # one per window
     hand_over: AcrossDrop | None = None
+    ramp: dict[str, list[float]] | None = None  # "pi" / "vf" → the branch's mean student weight at each ramp mark
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,7 @@ class Cat:
     windows: list[tuple[int, int]]
     runs: list[CatRun]
     hand_over_before: int | None = None  # steps: the window up to the drop that `before` averages
+    ramp_marks: list[int] | None = None
 
     def run_for(self, teachers: str, to: str) -> CatRun | None:
         return next((r for r in self.runs if "+".join(r.teachers) == teachers and r.to == to), None)
@@ -86,16 +89,24 @@ def load_cat(path: Path) -> Cat:
     try:
         doc = tomllib.loads(path.read_text())
         windows = [(int(lo), int(hi)) for lo, hi in doc["windows"]]
-        runs = [CatRun(tuple(r["teachers"]), r["to"], [float(x) for x in r["returns"]], _across_drop(r))
-                for r in doc["runs"]]
+        runs = [CatRun(tuple(r["teachers"]), r["to"], [float(x) for x in r["returns"]], _across_drop(r),
+                       _ramp(r)) for r in doc["runs"]]
         before = int(doc["hand_over_before"]) if "hand_over_before" in doc else None
+        ramp_marks = [int(x) for x in doc["ramp_marks"]] if "ramp_marks" in doc else None
     except (OSError, tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as e:
         raise SystemExit(f"Error: {path}: not a file of CAT's figures ({e})") from None
     if any(len(r.returns) != len(windows) for r in runs):
         raise SystemExit(f"Error: {path}: every run needs one return per window ({len(windows)})")
     if before is None and any(r.hand_over for r in runs):
         raise SystemExit(f"Error: {path}: runs give a hand_over but the file has no hand_over_before (steps)")
-    return Cat(str(doc.get("estimator", "")), windows, runs, before)
+    if any(r.ramp and any(len(v) != len(ramp_marks or []) for v in r.ramp.values()) for r in runs):
+        raise SystemExit(f"Error: {path}: every run's ramp needs one student weight per ramp_marks entry")
+    return Cat(str(doc.get("estimator", "")), windows, runs, before, ramp_marks)
+
+
+def _ramp(doc: dict) -> dict[str, list[float]] | None:
+    r = doc.get("ramp")
+    return None if r is None else {"pi": [float(x) for x in r["p_pi"]], "vf": [float(x) for x in r["p_vf"]]}
 
 
 def _across_drop(doc: dict) -> AcrossDrop | None:
@@ -297,6 +308,41 @@ def across_drop_lines(grid: Grid, summary: StudySummary, cat: Cat, method: str) 
     return [*lines, ""]
 
 
+def branch_weight_at(rows: list[dict], step: int, branch: str) -> float:
+    """The student weight of one branch ("pi", "vf"), averaged over its layers as CAT logs it, at the last
+    iteration at or before `step` (NaN before the first, or where that row logs none)."""
+    before = [row for row in rows if row["steps"] <= step]
+    if not before:
+        return float("nan")
+    weights = [v for k, v in before[-1].items() if k.startswith(f"p_{branch}_") and v is not None]
+    return float(np.mean(weights)) if weights else float("nan")
+
+
+def ramp_lines(grid: Grid, summary: StudySummary, cat: Cat, method: str) -> list[str]:
+    """Ours beside CAT: each branch's student weight at marks inside the coupling ramp."""
+    if not cat.ramp_marks:
+        return []
+    marks = cat.ramp_marks
+    head = ["teachers → target", "branch", "n",
+            *(f"{who} {m / 1e6:g}M" for m in marks for who in ("ours", "CAT"))]
+    lines = ["## The student weights during the ramp", "",
+             "The student weight p of each branch (π: policy, V: value function), averaged over its hidden layers "
+             "as CAT logs it, at the last iteration at or before each mark; ours mean ± sample std over seeds, "
+             "CAT 1 seed. 1 is the teachers unused: the coupling loss pushes p towards it.", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for pair in grid.pairs:
+        m = method_of(summary, pair.name, method)
+        ref = cat.run_for(teachers_of(pair), pair.to)
+        rows = [r.read_metrics() for r in m.runs]
+        for branch, label in (("pi", "π"), ("vf", "V")):
+            ours = [_pm2(v) if (v := [x for x in (branch_weight_at(r, s, branch) for r in rows) if np.isfinite(x)])
+                    else "—" for s in marks]
+            theirs = [f"{x:.2f}" for x in ref.ramp[branch]] if ref and ref.ramp else ["—"] * len(marks)
+            lines.append(f"| {pair.name} | {label} | {len(rows)} | "
+                         + " | ".join(c for cells in zip(ours, theirs, strict=True) for c in cells) + " |")
+    return [*lines, ""]
+
+
 def _signed_pm(values: list[float]) -> str:
     """mean ± sample std of changes, signed."""
     if len(values) == 1:
@@ -443,6 +489,7 @@ def report(study: Path, grid: Grid, one_study: Path, one_grid: Grid, cat: Cat, r
              f"`{one_grid.name}` (one-teacher pairs on the same targets: "
              f"{', '.join(p.name for p in one_pairs) or 'none'}), seeds {grid.seeds} of both.", "",
              *cat_lines(grid, summary, cat, method, fall),
+             *ramp_lines(grid, summary, cat, method),
              *hand_over_lines(grid, summary, method),
              *across_drop_lines(grid, summary, cat, method),
              *across_lines(families, baseline_of, random, random_source, n_resamples, study)]

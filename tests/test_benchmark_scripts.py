@@ -285,8 +285,10 @@ def test_multi_teacher_report_against_cat_and_across_studies_by_hand(registry, t
         name="one", seeds="[0, 1, 2]", baseline="mikt", extra="",
         pairs='[[pairs]]\nfrom = ["a"]\nto = "hopper"\n[[pairs]]\nfrom = ["c"]\nto = "walker"\n'))
     cat_file.write_text('estimator = "by hand"\nwindows = [[2048, 4096], [10240, 12288]]\nhand_over_before = 4096\n'
+                        'ramp_marks = [4096, 12288]\n'
                         '[[runs]]\nteachers = ["a", "b"]\nto = "hopper"\nreturns = [10, 50]\n'
-                        'hand_over = { drop = 8192, p_pi = 0.9, p_vf = 0.8, before = 30, after = 20 }\n')
+                        'hand_over = { drop = 8192, p_pi = 0.9, p_vf = 0.8, before = 30, after = 20 }\n'
+                        'ramp = { p_pi = [0.5, 0.6], p_vf = [0.4, 0.5] }\n')
     def rows(per_iteration, p_pi, p_vf):  # teachers for four iterations, dropped for the last two
         return [{"episode_return_iter": r, "teacher_active": float(i < 4), "p_pi_0": p_pi, "p_vf_0": p_vf}
                 for i, r in enumerate(per_iteration)]
@@ -332,6 +334,10 @@ def test_multi_teacher_report_against_cat_and_across_studies_by_hand(registry, t
     # the hand-over: the last coupled iteration is at 8192 steps (returns 40, 20), then (50, 60) and (40, 80)
     assert "| a+b → hopper | 2 | 8,192 | 0.70 ± 0.14 | 30 ± 14 | 45 ± 7 | 70 ± 14 | 1 ± 0 |" in text
     assert "| a+b → ant | 0 | — | — | — | — | — | — |" in text
+    # the weights during the ramp: each branch's one layer, constant per seed (0.8, 0.7 and 0.9, 0.6)
+    assert "| a+b → hopper | π | 2 | 0.75 ± 0.07 | 0.50 | 0.75 ± 0.07 | 0.60 |" in text
+    assert "| a+b → hopper | V | 2 | 0.75 ± 0.21 | 0.40 | 0.75 ± 0.21 | 0.50 |" in text
+    assert "| a+b → ant | π | 1 | — | — | — | — |" in text
     # across the drop as CAT measures it: before = iterations 3-4 (35; seed 1: 60, its NaN skipped), after =
     # iterations 5-6 (55; 75); p is each branch's layer mean (one layer here)
     assert ("| a+b → hopper | 2 | 0.75 ± 0.07 / 0.75 ± 0.21 | 0.90 / 0.80 | 48 ± 18 → 65 ± 14 | +18 ± 4 | 0 of 2 | "
@@ -362,6 +368,10 @@ def test_a_malformed_file_of_cat_figures_is_a_one_line_error(tmp_path):
     bad.write_text('windows = [[1, 2]]\n[[runs]]\nteachers = ["a"]\nto = "x"\nreturns = [1]\n'
                    'hand_over = { drop = 2, p_pi = 0.9, p_vf = 0.9, before = 1, after = 2 }\n')
     with pytest.raises(SystemExit, match="no hand_over_before"):
+        load_script("multi_teacher_report").load_cat(bad)
+    bad.write_text('windows = [[1, 2]]\nramp_marks = [1, 2]\n[[runs]]\nteachers = ["a"]\nto = "x"\nreturns = [1]\n'
+                   'ramp = { p_pi = [0.5], p_vf = [0.5, 0.6] }\n')
+    with pytest.raises(SystemExit, match="one student weight per ramp_marks"):
         load_script("multi_teacher_report").load_cat(bad)
     bad.write_text("windows = [")
     with pytest.raises(SystemExit, match="not a file of CAT's figures"):
