@@ -45,7 +45,7 @@ def sample_std(values: np.ndarray, axis: int | None = None) -> np.ndarray | floa
 def mean_pm_std(values) -> str:
     values = np.asarray(values, dtype=float)
     std = sample_std(values)
-    return f"{np.mean(values):.0f} ± {std:.0f}" if math.isfinite(std) else f"{np.mean(values):.0f}"
+    return f"{np.mean(values):,.0f} ± {std:,.0f}" if math.isfinite(std) else f"{np.mean(values):,.0f}"
 
 
 def unusable(run: Run, rows: list[dict[str, Any]]) -> str | None:
