@@ -20,7 +20,9 @@ scratch (issue 34), from the committed snapshots of two studies.
   performance profiles (a figure). The one-teacher pairs are other tasks than the two-teacher pairs (one
   teacher, not two), so the IQM strata are pairs and the probability of improvement is taken per target body.
 
-Writes `STUDY/against-cat.md` and `STUDY/against-cat-profile.png`; reads nothing from the registry.
+Writes `STUDY/against-cat.md` and `STUDY/against-cat-profile.png` (or `--out FILE` and FILE-profile.png beside
+it); reads nothing from the registry. A screening whose baseline is a transfer method, not PPO from scratch, gets
+the sections against CAT only: `--method NAME` picks which of its methods.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ from miktcli import aggregate
 from miktcli.plots import png_performance_profiles
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.runs import Run
-from miktcli.studies.grid import Grid, load_grid
+from miktcli.studies.grid import Grid, PairSpec, load_grid
 from miktcli.studies.summary import MethodSummary, StudySummary, mean_pm_std, summarise
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -402,7 +404,7 @@ def _estimate(e: aggregate.Estimate) -> str:
 
 
 def across_lines(families: list[Family], baseline_of: dict[str, MethodSummary | None], random: dict[str, float],
-                 random_source: str, n_resamples: int, out_dir: Path) -> list[str]:
+                 random_source: str, n_resamples: int, profile: Path) -> list[str]:
     targets = list(dict.fromkeys(t for f in families for t in f.target_of.values()))
     scale = {t: scales(random, baseline_of.get(t), t) for t in targets}
     lines = ["## Across studies: two teachers, one teacher, none", "",
@@ -456,27 +458,56 @@ def across_lines(families: list[Family], baseline_of: dict[str, MethodSummary | 
         for label, scores in profiles.items():
             point, low, high = aggregate.performance_profile_estimate(scores, taus, PROFILE_RESAMPLES, SEED)
             drawn[label] = (taus.tolist(), point.tolist(), low.tolist(), high.tolist())
-        png_performance_profiles(drawn, out_dir / "against-cat-profile.png",
+        png_performance_profiles(drawn, profile,
                                  f"performance profiles ({MEASURES[0]}, normalised; 95 % bands)",
                                  order=[f.label for f in families])  # each family keeps its colour as runs arrive
-        lines += ["![performance profiles](against-cat-profile.png)", ""]
+        lines += [f"![performance profiles]({profile.name})", ""]
     return lines
 
 
 def report(study: Path, grid: Grid, one_study: Path, one_grid: Grid, cat: Cat, random: dict[str, float],
            random_source: str, method: str = "mikt", n_resamples: int = aggregate.RESAMPLES,
-           fall: tuple[int, int] = FALL) -> Path:
-    """The report, every family on the two-teacher grid's seeds (so every figure averages the same seeds)."""
+           fall: tuple[int, int] = FALL, out: Path | None = None) -> Path:
+    """The report, every family on the two-teacher grid's seeds (so every figure averages the same seeds), at
+    `out` (default STUDY/against-cat.md; its figure beside it, named after it). The across-studies section needs
+    the grid's baseline to be PPO from scratch; a screening whose baseline is another transfer has none."""
+    path = out or study / "against-cat.md"
     summary = summarise(grid, json.loads((study / "state.json").read_text()), snapshot_runs(study))
-    one_grid = one_grid.model_copy(update={"seeds": grid.seeds})
-    one = summarise(one_grid, json.loads((one_study / "state.json").read_text()), snapshot_runs(one_study))
+    against_cat = [*cat_lines(grid, summary, cat, method, fall), *ramp_lines(grid, summary, cat, method),
+                   *hand_over_lines(grid, summary, method), *across_drop_lines(grid, summary, cat, method)]
+    if next(m for m in grid.methods if m.name == grid.baseline).uses_teachers:
+        lines = [f"# {grid.name}: `{method}` against CAT", "",
+                 f"Made by `benchmarks/multi_teacher_report.py` from the snapshots of `{grid.name}`, seeds "
+                 f"{grid.seeds}. No comparison across studies: this grid's baseline, `{grid.baseline}`, is not PPO "
+                 "from scratch.", "", *against_cat]
+        left_out = summary.left_out
+    else:
+        one_grid = one_grid.model_copy(update={"seeds": grid.seeds})
+        one = summarise(one_grid, json.loads((one_study / "state.json").read_text()), snapshot_runs(one_study))
+        one_pairs = [p for p in one_grid.pairs
+                     if p.to in {q.to for q in grid.pairs} and len(p.teachers) == 1]
+        lines = [f"# {grid.name}: two-teacher MIKT against CAT, one-teacher MIKT and PPO from scratch", "",
+                 f"Made by `benchmarks/multi_teacher_report.py` from the snapshots of `{grid.name}` and "
+                 f"`{one_grid.name}` (one-teacher pairs on the same targets: "
+                 f"{', '.join(p.name for p in one_pairs) or 'none'}), seeds {grid.seeds} of both.", "",
+                 *against_cat, *across_studies(grid, summary, one, one_pairs, method, random, random_source,
+                                               n_resamples, path.with_name(f"{path.stem}-profile.png"))]
+        left_out = summary.left_out + one.left_out
+    if left_out:
+        lines += ["Left out (files incomplete): " + "; ".join(left_out), ""]
+    write_text_atomic(path, "\n".join(lines))
+    return path
+
+
+def across_studies(grid: Grid, summary: StudySummary, one: StudySummary, one_pairs: list[PairSpec], method: str,
+                   random: dict[str, float], random_source: str, n_resamples: int, profile: Path) -> list[str]:
+    """Two-teacher `method`, one-teacher `method` and the grid's baseline (PPO from scratch), across studies."""
     targets = list(dict.fromkeys(p.to for p in grid.pairs))
     baseline_of: dict[str, MethodSummary | None] = {}
     for pair in grid.pairs:  # PPO from scratch: its runs are the same for every pair of a target
         m = method_of(summary, pair.name, grid.baseline)
         if m.runs and pair.to not in baseline_of:
             baseline_of[pair.to] = m
-    one_pairs = [p for p in one_grid.pairs if p.to in targets and len(p.teachers) == 1]
     families = [
         Family(f"two-teacher {method}", summary, method, [p.name for p in grid.pairs],
                {p.name: p.to for p in grid.pairs}),
@@ -484,21 +515,7 @@ def report(study: Path, grid: Grid, one_study: Path, one_grid: Grid, cat: Cat, r
         Family(f"{grid.baseline} (from scratch)", summary, grid.baseline,
                [next(p.name for p in grid.pairs if p.to == t) for t in targets], {p.name: p.to for p in grid.pairs}),
     ]
-    lines = [f"# {grid.name}: two-teacher MIKT against CAT, one-teacher MIKT and PPO from scratch", "",
-             f"Made by `benchmarks/multi_teacher_report.py` from the snapshots of `{grid.name}` and "
-             f"`{one_grid.name}` (one-teacher pairs on the same targets: "
-             f"{', '.join(p.name for p in one_pairs) or 'none'}), seeds {grid.seeds} of both.", "",
-             *cat_lines(grid, summary, cat, method, fall),
-             *ramp_lines(grid, summary, cat, method),
-             *hand_over_lines(grid, summary, method),
-             *across_drop_lines(grid, summary, cat, method),
-             *across_lines(families, baseline_of, random, random_source, n_resamples, study)]
-    left_out = summary.left_out + one.left_out
-    if left_out:
-        lines += ["Left out (files incomplete): " + "; ".join(left_out), ""]
-    path = study / "against-cat.md"
-    write_text_atomic(path, "\n".join(lines))
-    return path
+    return across_lines(families, baseline_of, random, random_source, n_resamples, profile)
 
 
 def main() -> None:
@@ -510,7 +527,8 @@ def main() -> None:
     parser.add_argument("--one-teacher-grid", type=Path, help="its grid (default: by its folder's name)")
     parser.add_argument("--cat", type=Path, default=ROOT / "benchmarks" / "reference" / "cat-uai2022.toml")
     parser.add_argument("--random", type=Path, default=ROOT / "benchmarks" / "results" / "random-policy.json")
-    parser.add_argument("--method", default="mikt")
+    parser.add_argument("--method", default="mikt", help="the grid's two-teacher method to set against CAT")
+    parser.add_argument("--out", type=Path, help="the report's file (default: STUDY/against-cat.md)")
     args = parser.parse_args()
     grids = ROOT / "benchmarks" / "grids"
     grid = load_grid(args.grid or grids / f"{args.study.name}.toml")
@@ -519,7 +537,7 @@ def main() -> None:
     source = args.random.resolve()  # named in the report: relative to the checkout, never this machine's path
     source = source.relative_to(ROOT) if source.is_relative_to(ROOT) else source
     print(report(args.study, grid, args.one_teacher, one_grid, load_cat(args.cat), random, str(source),
-                 args.method))
+                 args.method, out=args.out))
 
 
 if __name__ == "__main__":

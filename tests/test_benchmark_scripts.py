@@ -358,6 +358,16 @@ def test_multi_teacher_report_against_cat_and_across_studies_by_hand(registry, t
     assert "| two-teacher mikt vs vpg (from scratch) | 0.88 [" in final
     assert "| one-teacher mikt vs vpg (from scratch) | 0.75 [" in final  # 1 beats 0.67, loses to 1.33; 2 beats both
     assert (tmp_path / "two" / "against-cat-profile.png").read_bytes()[:4] == b"\x89PNG"
+    # a screening whose baseline is a transfer method: the sections against CAT, none across studies
+    screen = tmp_path / "screen.toml"
+    screen.write_text(two_grid.read_text().split("[[methods]]")[0].replace('baseline = "vpg"', 'baseline = "mikt"')
+                      + '[[methods]]\nname = "mikt"\nmethod = "mikt"\n')
+    path = script.report(tmp_path / "two", load_grid(screen), tmp_path / "one", load_grid(one_grid),
+                         script.load_cat(cat_file), {}, "by hand", out=tmp_path / "screen.md")
+    text = path.read_text()
+    assert text.startswith("# two: `mikt` against CAT") and "is not PPO from scratch" in text
+    assert "| a+b → hopper | π | 2 | 0.75 ± 0.07 | 0.50 | 0.75 ± 0.07 | 0.60 |" in text
+    assert "## Across studies" not in text and not (tmp_path / "screen-profile.png").exists()
 
 
 def test_a_malformed_file_of_cat_figures_is_a_one_line_error(tmp_path):
