@@ -1,6 +1,6 @@
 """Plot helpers: colours stay with a series name across the panels of one figure."""
 
-from miktcli.plots import png_panels, series_colors
+from miktcli.plots import png_panels, series_colors, series_linestyles
 
 
 def test_a_name_keeps_its_colour_in_every_panel():
@@ -51,3 +51,11 @@ def test_only_curves_of_fewer_seeds_than_the_grid_are_labelled_with_their_count(
 
     assert partial_seed_labels({"mikt": 5, "vpg": 5, "mlpp": 1}, 5) == {"mlpp": "mlpp (1 of 5 seeds)"}
     assert partial_seed_labels({"mikt": 1}, 1) == {}
+
+
+def test_more_curves_than_colours_change_line_style_so_no_two_curves_look_alike():
+    names = [f"w{i}" for i in range(12)]
+    colors = series_colors([dict.fromkeys(names, [])], ["c0", "c1", "c2", "c3", "c4"])
+    styles = series_linestyles(colors, 5)
+    looks = {(colors[n], styles[n]) for n in names}
+    assert len(looks) == 12 and styles["w0"] == "-" and styles["w5"] == "--" and styles["w10"] == ":"

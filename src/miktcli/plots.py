@@ -58,12 +58,24 @@ def series_colors(panels: list[Series], palette: list[str], order: Sequence[str]
     return colors
 
 
+LINESTYLES = ("-", "--", ":", "-.")
+
+
+def series_linestyles(colors: dict[str, str], palette_size: int) -> dict[str, str]:
+    """A line style per name of `series_colors`: solid for the palette's first round of colours, then dashed,
+    dotted… so that a figure with more curves than colours (a two-teacher run logs 12 weights) never draws two
+    curves alike."""
+    return {name: LINESTYLES[(i // palette_size) % len(LINESTYLES)] for i, name in enumerate(colors)}
+
+
 def _draw(ax, series: Series, title: str, ylabel: str, bands: Bands | None, colors: dict[str, str],
-          labels: Mapping[str, str] | None = None, xlabel: str = "environment steps") -> None:
+          labels: Mapping[str, str] | None = None, xlabel: str = "environment steps",
+          styles: Mapping[str, str] | None = None) -> None:
     for name, pts in series.items():
         xs, ys = zip(*pts, strict=True) if pts else ((), ())
         # the legend may say more than the name (a curve of fewer seeds than the others); the colour stays the name's
-        ax.plot(xs, ys, label=(labels or {}).get(name, name), linewidth=1.6, color=colors[name])
+        ax.plot(xs, ys, label=(labels or {}).get(name, name), linewidth=1.6, color=colors[name],
+                linestyle=(styles or {}).get(name, "-"))
         if bands and name in bands and bands[name]:
             bx, lo, hi = zip(*bands[name], strict=True)
             ax.fill_between(bx, lo, hi, alpha=0.2, color=colors[name])
@@ -95,11 +107,12 @@ def png_panels(panels: list[tuple[Series, str, Bands | None]], path: Path, ylabe
     rows = -(-len(panels) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(7 * cols if cols == 1 else 5 * cols, 4.2 * rows), dpi=110,
                              squeeze=False)
-    colors = series_colors([series for series, _, _ in panels], plt.rcParams["axes.prop_cycle"].by_key()["color"],
-                           order)
+    palette = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colors = series_colors([series for series, _, _ in panels], palette, order)
+    styles = series_linestyles(colors, len(palette))
     panel_labels = [*labels, *[None] * (len(panels) - len(labels))]
     for ax, (series, title, bands), names in zip(axes.flat, panels, panel_labels, strict=False):
-        _draw(ax, series, title, ylabel, bands, colors, names, xlabel)
+        _draw(ax, series, title, ylabel, bands, colors, names, xlabel, styles)
     for ax in list(axes.flat)[len(panels):]:
         ax.set_visible(False)
     fig.tight_layout()
