@@ -122,7 +122,12 @@ def window_mean(run: Run, low: int, high: int) -> float:
     """CAT's estimator on one run: the mean of the per-iteration return of the episodes that finished in that
     iteration, over the iterations logged between `low` and `high` steps (iterations where none finished
     have no such return and are skipped, as CAT's logs have none). NaN where the window holds none."""
-    values = [row["episode_return_iter"] for row in run.read_metrics()
+    return _window_mean(run.read_metrics(), low, high)
+
+
+def _window_mean(rows: list[dict], low: int, high: int) -> float:
+    """window_mean over rows already read."""
+    values = [row["episode_return_iter"] for row in rows
               if low <= row["steps"] <= high and row.get("episode_return_iter") is not None]
     finite = [v for v in values if np.isfinite(v)]
     return float(np.mean(finite)) if finite else float("nan")
@@ -268,15 +273,15 @@ def across_drop(run: Run, before: int) -> AcrossDrop | None:
     rows = run.read_metrics()
     if (i := _last_coupled(rows)) is None:
         return None
-    last = rows[i]
-    drop = last["steps"]
+    drop = rows[i]["steps"]
+    return AcrossDrop(drop, _branch_mean(rows[i], "pi"), _branch_mean(rows[i], "vf"),
+                      _window_mean(rows, drop - before + 1, drop), _window_mean(rows, drop + 1, rows[-1]["steps"]))
 
-    def branch_mean(prefix: str) -> float:
-        weights = [v for k, v in last.items() if k.startswith(prefix) and v is not None]
-        return float(np.mean(weights)) if weights else float("nan")
 
-    return AcrossDrop(drop, branch_mean("p_pi_"), branch_mean("p_vf_"), window_mean(run, drop - before + 1, drop),
-                      window_mean(run, drop + 1, rows[-1]["steps"]))
+def _branch_mean(row: dict, branch: str) -> float:
+    """One branch's ("pi", "vf") student weight in a metrics row, averaged over its layers as CAT logs it."""
+    weights = [v for k, v in row.items() if k.startswith(f"p_{branch}_") and v is not None]
+    return float(np.mean(weights)) if weights else float("nan")
 
 
 def across_drop_lines(grid: Grid, summary: StudySummary, cat: Cat, method: str) -> list[str]:
@@ -314,10 +319,7 @@ def branch_weight_at(rows: list[dict], step: int, branch: str) -> float:
     """The student weight of one branch ("pi", "vf"), averaged over its layers as CAT logs it, at the last
     iteration at or before `step` (NaN before the first, or where that row logs none)."""
     before = [row for row in rows if row["steps"] <= step]
-    if not before:
-        return float("nan")
-    weights = [v for k, v in before[-1].items() if k.startswith(f"p_{branch}_") and v is not None]
-    return float(np.mean(weights)) if weights else float("nan")
+    return _branch_mean(before[-1], branch) if before else float("nan")
 
 
 def ramp_lines(grid: Grid, summary: StudySummary, cat: Cat, method: str) -> list[str]:
