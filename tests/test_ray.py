@@ -153,5 +153,36 @@ def test_sigterm_stops_a_ray_study_like_ctrl_c(tmp_path):
             proc.kill()
             proc.communicate()
     assert proc.returncode == 1, stderr
-    assert "interrupted; every cell keeps its last handed-back checkpoint" in stderr
+    assert "interrupted; every cell keeps its last handed-back checkpoint" in stderr, f"stderr:\n{stderr}"
     assert [open_run(registry, r).status for r in ("run1", "run2")] == ["interrupted", "not started"]
+
+
+def test_a_stop_request_waits_for_the_driver_loop_and_a_second_one_stops_at_once():
+    """Inside the driver loop Ctrl-C and SIGTERM only ask for a stop (a KeyboardInterrupt raised inside one of
+    Ray's calls may be swallowed or wrapped by it) and call off the abort Ray's C-level handler arms; a second
+    one raises at once; the handlers come back after. A handler of Ray's own is left in charge."""
+    from miktcli.studies.ray_executor import stop_requests
+
+    def callers(signum, frame):
+        raise KeyboardInterrupt
+
+    def rays(signum, frame):
+        raise AssertionError("not reached")
+
+    rays.__module__ = "ray._private.node"
+    before = signal.signal(signal.SIGTERM, callers)
+    try:
+        with stop_requests() as stop:
+            signal.alarm(30)  # as Ray's C-level SIGTERM handler arms one, to abort the process 3 s on
+            signal.raise_signal(signal.SIGTERM)
+            assert stop.is_set()  # asked, nothing raised
+            assert signal.alarm(0) == 0  # and the abort was called off: the clean stop takes longer than 3 s
+            with pytest.raises(KeyboardInterrupt):
+                signal.raise_signal(signal.SIGINT)
+        assert signal.getsignal(signal.SIGTERM) is callers
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        signal.signal(signal.SIGTERM, rays)
+        with stop_requests():
+            assert signal.getsignal(signal.SIGTERM) is rays
+    finally:
+        signal.signal(signal.SIGTERM, before)

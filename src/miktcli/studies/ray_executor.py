@@ -39,6 +39,7 @@ from miktcli.workflows.transfer import train_transfer_chunk
 
 CHUNK_ITERATIONS = 20  # iterations per task: ~40k steps, about a minute here; a lost worker costs at most this
 MAX_ATTEMPTS = 3  # tries of one chunk when workers die under it
+WAIT_S = 1.0  # the longest the driver waits for a chunk before it looks again (a stop, the progress)
 # Tests only: "RUN:CHUNK:MARKER" in the driver's environment makes the first try of that run's CHUNK-th chunk
 # (counted from 0 in this driver session) kill its worker outright, to prove the cell is sent again.
 FAULT_ENV = "MIKT_RAY_FAULT"
@@ -120,6 +121,43 @@ def train_chunk_task(run_id: str, run_files: dict[str, bytes], teacher_files: di
 
 
 # --- the driver -----------------------------------------------------------------------------------------
+
+@contextmanager
+def stop_requests() -> Iterator[threading.Event]:
+    """While the block runs, Ctrl-C and SIGTERM only set the event; the driver loop stops between two waits.
+
+    A KeyboardInterrupt raised wherever the signal happens to land could land inside Ray's own calls (a
+    task's submission and the pickling of its arguments, `ray.wait`), which may swallow or wrap it: a SIGTERM
+    once ended a study with exit 1, a Ray stack trace and no word on how to resume. Taking the signal over
+    for the loop also overrides any SIGTERM handler Ray installed meanwhile. A second signal stops at once.
+    Only Python handlers that are not Ray's are taken over: where the caller had none, Ray's (which tears
+    down Ray's processes and exits) stays in charge, as before."""
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+
+    def request_stop(signum, frame) -> None:
+        if signal.getsignal(signal.SIGALRM) in (signal.SIG_DFL, None):
+            # Ray's core worker can hold SIGTERM at the C level (abseil's failure handler: a stack trace, then
+            # on to this handler) and arms a 3 s alarm that aborts the process, mid-way through the clean
+            # stop. No Python code here set an alarm, so the pending one is that.
+            signal.alarm(0)
+        if stop.is_set():
+            raise KeyboardInterrupt
+        stop.set()
+
+    previous = {}
+    for s in (signal.SIGINT, signal.SIGTERM):
+        handler = signal.getsignal(s)
+        if callable(handler) and not getattr(handler, "__module__", "").startswith("ray"):
+            previous[s] = signal.signal(s, request_stop)
+    try:
+        yield stop
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
 
 def _teacher_payload(registry: Path, run: Run) -> dict[str, tuple[bytes, str]]:
     payload = {}
@@ -283,8 +321,9 @@ class RayDriver:
         self.locks.pop(run_id).release()
         return p
 
-    def _take_back(self, ref) -> CellProgress | None:
-        """What a finished task means for its cell: the cell's progress when the cell ended, else None."""
+    def _take_back(self, ref, submit_next: bool = True) -> CellProgress | None:
+        """What a finished task means for its cell: the cell's progress when the cell ended, else None. With
+        submit_next False (the study is stopping) the cell's next chunk, or a retry, is not sent."""
         run_id = self.in_flight.pop(ref)
         p = self.progress[run_id]
         try:
@@ -292,7 +331,8 @@ class RayDriver:
         except self.system_errors as err:
             if p.attempts < MAX_ATTEMPTS:
                 p.state = "retrying"  # again from the last folder handed back: the driver's copy
-                self._submit(run_id)
+                if submit_next:
+                    self._submit(run_id)
                 return None
             return self._end(run_id, "failed", f"workers died {MAX_ATTEMPTS} times under one chunk: {err}")
         except self.ray.exceptions.RayTaskError as err:
@@ -305,22 +345,27 @@ class RayDriver:
         if status == "completed":
             return self._end(run_id, "completed")
         p.state = "training"
-        self._submit(run_id)
+        if submit_next:
+            self._submit(run_id)
         return None
 
     def run(self, on_progress: Callable[[list[CellProgress]], None] | None) -> Iterator[CellProgress]:
-        while self.queue or self.in_flight:
-            while self.queue and len(self.in_flight) < self.capacity:
-                self._submit(self.queue.pop(0))
+        """Raises KeyboardInterrupt, between two waits, once Ctrl-C or SIGTERM asked the study to stop."""
+        with stop_requests() as stop:
+            while self.queue or self.in_flight:
+                while self.queue and len(self.in_flight) < self.capacity and not stop.is_set():
+                    self._submit(self.queue.pop(0))
+                if stop.is_set():
+                    raise KeyboardInterrupt
+                if on_progress:
+                    on_progress(list(self.progress.values()))
+                done, _ = self.ray.wait(list(self.in_flight), num_returns=1, timeout=WAIT_S)
+                if done:  # taken back even when a stop came meanwhile: the chunk it trained is kept
+                    ended = self._take_back(done[0], submit_next=not stop.is_set())
+                    if ended is not None:
+                        yield ended
             if on_progress:
                 on_progress(list(self.progress.values()))
-            done, _ = self.ray.wait(list(self.in_flight), num_returns=1, timeout=5.0)
-            if done:
-                ended = self._take_back(done[0])
-                if ended is not None:
-                    yield ended
-        if on_progress:
-            on_progress(list(self.progress.values()))
 
     def cancel(self) -> None:
         """Stop every task; each cell it held stays resumable from its last handed-back chunk."""
