@@ -347,18 +347,21 @@ def ramp_lines(grid: Grid, summary: StudySummary, cat: Cat, method: str) -> list
     return [*lines, ""]
 
 
-def _signed_pm(values: list[float]) -> str:
-    """mean ± sample std of changes, signed."""
+def _mean_sd(values: list[float], mean_format: str, sd_format: str | None = None) -> str:
+    """mean ± sample std in the given formats; one value alone."""
     if len(values) == 1:
-        return f"{values[0]:+,.0f}"
-    return f"{np.mean(values):+,.0f} ± {np.std(values, ddof=1):,.0f}"
+        return format(values[0], mean_format)
+    return f"{format(np.mean(values), mean_format)} ± {format(np.std(values, ddof=1), sd_format or mean_format)}"
+
+
+def _signed_pm(values: list[float]) -> str:
+    """Changes, signed, in whole units."""
+    return _mean_sd(values, "+,.0f", ",.0f")
 
 
 def _pm2(values: list[float]) -> str:
-    """mean ± sample std with two decimals (weights)."""
-    if len(values) == 1:
-        return f"{values[0]:.2f}"
-    return f"{np.mean(values):.2f} ± {np.std(values, ddof=1):.2f}"
+    """Weights, with two decimals."""
+    return _mean_sd(values, ".2f")
 
 
 @dataclass(frozen=True)
