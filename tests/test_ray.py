@@ -186,3 +186,31 @@ def test_a_stop_request_waits_for_the_driver_loop_and_a_second_one_stops_at_once
             assert signal.getsignal(signal.SIGTERM) is rays
     finally:
         signal.signal(signal.SIGTERM, before)
+
+
+def test_a_stop_that_comes_with_the_last_chunk_in_flight_still_stops_the_study():
+    """The last chunk comes back during the wait in which the stop was asked for: nothing is left in flight or
+    queued, and the loop must still raise (so the caller cancels and says how to resume), not end as if done."""
+    from types import SimpleNamespace
+
+    from miktcli.studies.ray_executor import RayDriver
+
+    def callers(signum, frame):
+        raise KeyboardInterrupt
+
+    def wait(refs, num_returns, timeout):
+        signal.raise_signal(signal.SIGTERM)  # arrives while Ray waits
+        return refs[:1], refs[1:]
+
+    driver = object.__new__(RayDriver)
+    driver.ray = SimpleNamespace(wait=wait)
+    driver.queue, driver.in_flight, driver.capacity, driver.progress = [], {"ref": "run1"}, 1, {}
+    taken = []
+    driver._take_back = lambda ref, submit_next=True: taken.append((driver.in_flight.pop(ref), submit_next))
+    before = signal.signal(signal.SIGTERM, callers)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            list(driver.run(None))
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    assert taken == [("run1", False)]  # the chunk that came back is kept, and no next one was sent

@@ -31,7 +31,7 @@ import torch
 
 from miktcli.envs.spec import user_specs_dir
 from miktcli.errors import MiktError
-from miktcli.registry.files import write_bytes_atomic
+from miktcli.registry.files import deferred_interrupt, write_bytes_atomic
 from miktcli.registry.runs import Run, RunLock, open_run
 from miktcli.registry.teachers import resolve
 from miktcli.workflows.session import run_to_end
@@ -155,8 +155,15 @@ def stop_requests() -> Iterator[threading.Event]:
     try:
         yield stop
     finally:
+        second_signal = False
         for s, handler in previous.items():
-            signal.signal(s, handler)
+            try:
+                signal.signal(s, handler)
+            except KeyboardInterrupt:  # a pending second signal ran request_stop first; give the handler back
+                second_signal = True
+                signal.signal(s, handler)
+        if second_signal:
+            raise KeyboardInterrupt
 
 
 def _teacher_payload(registry: Path, run: Run) -> dict[str, tuple[bytes, str]]:
@@ -364,6 +371,8 @@ class RayDriver:
                     ended = self._take_back(done[0], submit_next=not stop.is_set())
                     if ended is not None:
                         yield ended
+            if stop.is_set():  # it came with the last chunk in flight, or while the caller held the last cell
+                raise KeyboardInterrupt
             if on_progress:
                 on_progress(list(self.progress.values()))
 
@@ -397,7 +406,8 @@ def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: i
             driver.lock_all()
             yield from driver.run(on_progress)
         except KeyboardInterrupt:
-            driver.cancel()
+            with deferred_interrupt():  # a second Ctrl-C waits until every cell is marked resumable
+                driver.cancel()
             raise
         finally:
             driver.release()
