@@ -157,20 +157,22 @@ def test_sigterm_stops_a_ray_study_like_ctrl_c(tmp_path):
     assert [open_run(registry, r).status for r in ("run1", "run2")] == ["interrupted", "not started"]
 
 
+def _callers_handler(signum, frame):
+    """A caller's SIGTERM handler, as the CLI's: a stop like Ctrl-C."""
+    raise KeyboardInterrupt
+
+
 def test_a_stop_request_waits_for_the_driver_loop_and_a_second_one_stops_at_once():
     """Inside the driver loop Ctrl-C and SIGTERM only ask for a stop (a KeyboardInterrupt raised inside one of
     Ray's calls may be swallowed or wrapped by it) and call off the abort Ray's C-level handler arms; a second
     one raises at once; the handlers come back after. A handler of Ray's own is left in charge."""
     from miktcli.studies.ray_executor import stop_requests
 
-    def callers(signum, frame):
-        raise KeyboardInterrupt
-
     def rays(signum, frame):
         raise AssertionError("not reached")
 
     rays.__module__ = "ray._private.node"
-    before = signal.signal(signal.SIGTERM, callers)
+    before = signal.signal(signal.SIGTERM, _callers_handler)
     try:
         with stop_requests() as stop:
             signal.alarm(30)  # as Ray's C-level SIGTERM handler arms one, to abort the process 3 s on
@@ -179,7 +181,7 @@ def test_a_stop_request_waits_for_the_driver_loop_and_a_second_one_stops_at_once
             assert signal.alarm(0) == 0  # and the abort was called off: the clean stop takes longer than 3 s
             with pytest.raises(KeyboardInterrupt):
                 signal.raise_signal(signal.SIGINT)
-        assert signal.getsignal(signal.SIGTERM) is callers
+        assert signal.getsignal(signal.SIGTERM) is _callers_handler
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
         signal.signal(signal.SIGTERM, rays)
         with stop_requests():
@@ -195,9 +197,6 @@ def test_a_stop_that_comes_with_the_last_chunk_in_flight_still_stops_the_study()
 
     from miktcli.studies.ray_executor import RayDriver
 
-    def callers(signum, frame):
-        raise KeyboardInterrupt
-
     def wait(refs, num_returns, timeout):
         signal.raise_signal(signal.SIGTERM)  # arrives while Ray waits
         return refs[:1], refs[1:]
@@ -207,7 +206,7 @@ def test_a_stop_that_comes_with_the_last_chunk_in_flight_still_stops_the_study()
     driver.queue, driver.in_flight, driver.capacity, driver.progress = [], {"ref": "run1"}, 1, {}
     taken = []
     driver._take_back = lambda ref, submit_next=True: taken.append((driver.in_flight.pop(ref), submit_next))
-    before = signal.signal(signal.SIGTERM, callers)
+    before = signal.signal(signal.SIGTERM, _callers_handler)
     try:
         with pytest.raises(KeyboardInterrupt):
             list(driver.run(None))

@@ -359,11 +359,9 @@ class RayDriver:
     def run(self, on_progress: Callable[[list[CellProgress]], None] | None) -> Iterator[CellProgress]:
         """Raises KeyboardInterrupt, between two waits, once Ctrl-C or SIGTERM asked the study to stop."""
         with stop_requests() as stop:
-            while self.queue or self.in_flight:
+            while (self.queue or self.in_flight) and not stop.is_set():
                 while self.queue and len(self.in_flight) < self.capacity and not stop.is_set():
                     self._submit(self.queue.pop(0))
-                if stop.is_set():
-                    raise KeyboardInterrupt
                 if on_progress:
                     on_progress(list(self.progress.values()))
                 done, _ = self.ray.wait(list(self.in_flight), num_returns=1, timeout=WAIT_S)
@@ -371,7 +369,7 @@ class RayDriver:
                     ended = self._take_back(done[0], submit_next=not stop.is_set())
                     if ended is not None:
                         yield ended
-            if stop.is_set():  # it came with the last chunk in flight, or while the caller held the last cell
+            if stop.is_set():  # also when it came with the last chunk in flight, or while the caller held a cell
                 raise KeyboardInterrupt
             if on_progress:
                 on_progress(list(self.progress.values()))
