@@ -33,3 +33,14 @@ def ctrl_c_at_second_update(monkeypatch):
 
     monkeypatch.setattr(PPOTrainer, "update", interrupted)
     return lambda: monkeypatch.setattr(PPOTrainer, "update", original)
+
+
+@pytest.fixture()
+def pythons_ctrl_c():
+    """Python's own Ctrl-C handler on SIGINT for the test, whatever earlier tests' libraries (Ray, torch's
+    compiler) left there; the previous handler comes back after."""
+    import signal
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)

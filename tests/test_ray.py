@@ -162,7 +162,7 @@ def _callers_handler(signum, frame):
     raise KeyboardInterrupt
 
 
-def test_a_stop_request_waits_for_the_driver_loop_and_a_second_one_stops_at_once():
+def test_a_stop_request_waits_for_the_driver_loop_and_a_second_one_stops_at_once(pythons_ctrl_c):
     """Inside the driver loop Ctrl-C and SIGTERM only ask for a stop (a KeyboardInterrupt raised inside one of
     Ray's calls may be swallowed or wrapped by it) and call off the abort Ray's C-level handler arms; a second
     one raises at once; the handlers come back after. A handler of Ray's own is left in charge."""
@@ -173,9 +173,6 @@ def test_a_stop_request_waits_for_the_driver_loop_and_a_second_one_stops_at_once
 
     rays.__module__ = "ray._private.node"
     before = signal.signal(signal.SIGTERM, _callers_handler)
-    # Python's own Ctrl-C handler, whatever earlier tests' libraries (Ray, torch's compiler) left on SIGINT:
-    # in the whole suite one left a handler of Ray's there, which stop_requests rightly leaves alone.
-    before_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         with stop_requests() as stop:
             signal.alarm(30)  # as Ray's C-level SIGTERM handler arms one, to abort the process 3 s on
@@ -191,7 +188,6 @@ def test_a_stop_request_waits_for_the_driver_loop_and_a_second_one_stops_at_once
             assert signal.getsignal(signal.SIGTERM) is rays
     finally:
         signal.signal(signal.SIGTERM, before)
-        signal.signal(signal.SIGINT, before_int)
 
 
 def test_a_stop_that_comes_with_the_last_chunk_in_flight_still_stops_the_study():

@@ -119,7 +119,7 @@ def test_listing_reads_headers_only(published, monkeypatch):
     assert rows[0]["ref"] == "tiny@v1" and rows[0]["card"]["obs_dim"] == 11
 
 
-def test_a_signal_during_an_atomic_write_waits_for_the_write(tmp_path):
+def test_a_signal_during_an_atomic_write_waits_for_the_write(tmp_path, pythons_ctrl_c):
     import os
     import signal
 
@@ -134,15 +134,12 @@ def test_a_signal_during_an_atomic_write_waits_for_the_write(tmp_path):
 
     import miktcli.registry.files as atomic
 
-    # Python's own Ctrl-C handler, whatever earlier tests' libraries (Ray, torch's compiler) did to SIGINT.
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     atomic.os.fsync = fsync_then_ctrl_c
     try:
         with pytest.raises(KeyboardInterrupt):
             write_bytes_atomic(target, b"complete")
     finally:
         atomic.os.fsync = original
-        signal.signal(signal.SIGINT, previous)
     assert target.read_bytes() == b"complete"  # the write finished first, then Ctrl-C was delivered
 
 
