@@ -7,7 +7,7 @@ from miktcli.envs.spec import load_spec_file
 from miktcli.envs.vector import SyncEnvs
 from miktcli.nets import ObsNormalizer
 from miktcli.policies import GaussianActorCritic
-from miktcli.ppo import PPOConfig, PPOTrainer, compute_gae
+from miktcli.ppo import PPOConfig, PPOTrainer, compute_gae, flushing_denormals
 
 
 def test_gae_against_a_hand_computed_case():
@@ -120,3 +120,38 @@ def test_hand_written_gaussian_log_prob_and_kl_match_torch_distributions():
     old = Independent(Normal(old_mean, old_log_std.exp()), 1)
     torch.testing.assert_close(gaussian_log_prob(actions, mean, log_std), new.log_prob(actions))
     torch.testing.assert_close(gaussian_kl(mean, log_std, old_mean, old_log_std), kl_divergence(new, old))
+
+
+
+def subnormals(t):
+    tiny = torch.finfo(torch.float32).tiny
+    state = t.optimizer.state[t.flat.flat]
+    return sum(int(((x != 0) & (x.abs() < tiny)).sum())
+               for x in (t.flat.flat.data, state["exp_avg"], state["exp_avg_sq"]))
+
+
+def test_an_iteration_flushes_the_subnormals_in_weights_and_adam_s_moments():
+    t = trainer(steps=768)
+    runs = t.run()
+    next(runs)  # one update, so Adam has moments to plant into
+    tiny = torch.finfo(torch.float32).tiny
+    with torch.no_grad():
+        t.agent.pi.head.weight[0].fill_(tiny / 8)
+        state = t.optimizer.state[t.flat.flat]
+        state["exp_avg"][:100].fill_(tiny / 8)
+        state["exp_avg_sq"][:100].fill_(tiny / 8)
+    assert subnormals(t) == t.agent.pi.head.weight.shape[1] + 200
+    next(runs)
+    assert subnormals(t) == 0
+
+
+def test_subnormals_are_flushed_inside_the_update_only_and_old_cards_kept_them():
+    tiny = torch.finfo(torch.float32).tiny
+    x = torch.tensor(tiny)
+    with flushing_denormals(True):
+        assert float(x / 8) == 0.0
+    assert float(x / 8) != 0.0  # the rollout and the physics keep IEEE arithmetic
+    with flushing_denormals(False):
+        assert float(x / 8) != 0.0
+    assert PPOConfig().flush_denormal
+    assert not PPOConfig.from_record({}).flush_denormal  # what runs before the setting did

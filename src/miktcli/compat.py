@@ -18,8 +18,9 @@ OPTIONS_KEY_0_1 = "mikt"  # where 0.1 kept a method's options: in run cards, and
 def ppo_record(record: dict[str, Any]) -> dict[str, Any]:
     """PPO settings of a card or checkpoint. 0.1 clipped actions for the env and recorded no
     `clip_actions_for_env`, so a missing field means True: resuming or evaluating its runs keeps the reward
-    they were trained on."""
-    return {"clip_actions_for_env": True, **{k: v for k, v in record.items() if k not in PPO_KEYS_0_1}}
+    they were trained on. Cards before `flush_denormal` ran their updates with subnormal floats kept."""
+    return {"clip_actions_for_env": True, "flush_denormal": False,
+            **{k: v for k, v in record.items() if k not in PPO_KEYS_0_1}}
 
 
 def teacher_card(data: Any) -> Any:

@@ -9,7 +9,10 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from miktcli import limits
+from miktcli.envs import make_env
 from miktcli.envs.failures import env_failure
+from miktcli.limits import check_count
 from miktcli.render import render_frame
 
 
@@ -61,3 +64,26 @@ def run_episodes(
         result.returns.append(total)
         result.lengths.append(length)
     return result
+
+
+def evaluate_policy(policy: ActorCritic, env_name: str, episodes: int, seed: int, clip_actions: bool,
+                    deterministic: bool = True, capture_episodes: int = 0,
+                    max_frames: int = limits.MAX_VIDEO_FRAMES) -> EvalResult:
+    """Run the policy (normaliser frozen) on fresh episodes; frames from the first `capture_episodes`, at
+    most `max_frames` of them (they are held in memory)."""
+    check_count("episodes", episodes, limits.MAX_EPISODES)
+    check_count("video frames", max_frames, limits.MAX_VIDEO_FRAMES)
+    env = make_env(env_name, render_mode="rgb_array" if capture_episodes else None)
+    policy.obs_normalizer.frozen = True
+    torch.manual_seed(seed)
+    try:
+        with torch.no_grad():
+            return run_episodes(lambda o: policy.act(o, deterministic), env, episodes, seed,
+                                capture_episodes=capture_episodes, clip_actions=clip_actions, max_frames=max_frames)
+    finally:
+        env.close()
+
+
+def evaluation_summary(policy: ActorCritic, env_name: str, episodes: int, seed: int,
+                       clip_actions: bool) -> dict[str, float]:
+    return evaluate_policy(policy, env_name, episodes, seed, clip_actions).summary()

@@ -11,6 +11,7 @@ from torch import nn
 from miktcli.nets import MLP, ObsNormalizer
 
 LOG_2PI = math.log(2.0 * math.pi)
+TEACHER_FREE = "teacher-free"  # the phase in which a transfer method's student runs without its teachers
 
 
 def gaussian_log_prob(actions: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
@@ -60,6 +61,24 @@ class ActorCritic(nn.Module):
 
     def set_progress(self, fraction: float) -> None:
         """Called before each iteration with the fraction of training done (for schedules)."""
+
+    def restore_progress(self, fraction: float) -> None:
+        """Called on resume with the fraction of the checkpoint's last iteration: put the schedule there
+        without acting on the way (what it did then is in the checkpoint's weights)."""
+        self.set_progress(fraction)
+
+    def phase(self, fraction: float) -> str:
+        """The schedule's phase at a fraction of training; a run keeps a checkpoint at every change."""
+        return "train"
+
+    def optional_state(self) -> set[str]:
+        """State keys a checkpoint may lack (added to the module after older checkpoints were written); they
+        load with the module's initial values."""
+        return set()
+
+    def observe_rollout(self, obs: torch.Tensor) -> None:
+        """Called once per iteration, after the update and without gradients, with the rollout's normalised
+        observations: a module may keep running statistics of them (as buffers, so checkpoints hold them)."""
 
     def diagnostics(self) -> dict[str, float]:
         """Scalars worth logging every iteration (e.g. mixing weights)."""

@@ -12,6 +12,7 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Literal, NamedTuple
 
@@ -64,6 +65,12 @@ class PPOConfig(BaseModel):
     lean_env: bool = Field(
         True, description="step this package's own env families (centipede, Ant-v4, Hopper-v5) straight over "
         "MuJoCo's arrays (envs/lean.py), bit-identical to the gymnasium env; off: every step through gymnasium")
+    flush_denormal: bool = Field(
+        True, description="flush subnormal floats to zero (FTZ/DAZ) in the networks' work outside the rollout "
+        "(the value pass, the update, the statistics after it), as TensorFlow does in every kernel, so the "
+        "authors' code did too. Off: subnormals are kept; MIKT's decoder rows for constant observation dims and "
+        "Adam's moments of parameters without gradient decay into that range as a run trains, and on CPUs "
+        "that take a microcode assist for each subnormal operand every op reading them slows down")
     compile_loss: bool = Field(
         False, description="run the minibatch loss and its gradient through torch.compile: the same maths to "
         "float rounding, faster updates on a CPU (benchmarks/throughput.py), a compile of ~30 s at the start "
@@ -188,11 +195,33 @@ def compiled(loss: Callable[..., Any]) -> Callable[..., Any]:
     return call
 
 
+def complete_state(module: ActorCritic, state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """`state` with the module's optional tensors it lacks (an older checkpoint) at their initial values."""
+    own = module.state_dict()
+    return {**{k: own[k] for k in module.optional_state() - state.keys()}, **state}
+
+
+@contextmanager
+def flushing_denormals(on: bool) -> Iterator[None]:
+    """Subnormal floats read and written as zero inside (this thread's FTZ/DAZ flags; torch's update runs on
+    it: the engine sets one thread). Off outside, so the rollout and MuJoCo's physics keep IEEE arithmetic."""
+    if not on:
+        yield
+        return
+    torch.set_flush_denormal(True)
+    try:
+        yield
+    finally:
+        torch.set_flush_denormal(False)
+
+
 def state_misfit(module: torch.nn.Module, state: dict[str, torch.Tensor]) -> str | None:
     """What keeps `state` from loading into `module` (missing, unexpected or mis-shaped tensors), or None.
     Checked before loading so that a checkpoint of another model is refused with its reason, not torch's."""
     wanted = module.state_dict()
-    missing, extra = sorted(wanted.keys() - state.keys()), sorted(state.keys() - wanted.keys())
+    optional = module.optional_state() if isinstance(module, ActorCritic) else set()
+    missing = sorted(wanted.keys() - state.keys() - optional)
+    extra = sorted(state.keys() - wanted.keys())
     if missing or extra:
         return f"agent tensors do not fit this run's model: missing {missing[:3]}, unexpected {extra[:3]}"
     bad = [k for k, v in state.items() if v.shape != wanted[k].shape]
@@ -417,8 +446,11 @@ class PPOTrainer:
             t_start = time.perf_counter()
             rollout, stats = self.collect()
             t_rollout = time.perf_counter() - t_start
-            batch = self._values_and_targets(rollout)
-            losses = self.update(batch)
+            with flushing_denormals(cfg.flush_denormal):
+                batch = self._values_and_targets(rollout)
+                losses = self.update(batch)
+                with torch.no_grad():
+                    self.agent.observe_rollout(batch.obs)
             t_total = time.perf_counter() - t_start
             self.iteration += 1
             self.global_step += cfg.batch_size
@@ -487,7 +519,7 @@ class PPOTrainer:
             raise ValueError(f"progress lacks '{lost[0]}'")
         env_arrays = {k: v.numpy() for k, v in part("envs.").items()}
 
-        self.agent.load_state_dict(agent_state)  # copies in place: the flat-buffer views survive
+        self.agent.load_state_dict(complete_state(self.agent, agent_state))  # in place: flat views survive
         sd = self.optimizer.state_dict()
         sd["state"] = {0: opt_state}
         self.optimizer.load_state_dict(sd)
@@ -501,6 +533,8 @@ class PPOTrainer:
         self.torch_gen.set_state(torch.tensor(progress["torch_rng"], dtype=torch.uint8))
         if env_arrays and "envs" in progress:
             self.envs.load_state(env_arrays, progress["envs"])
+        if self.iteration > 0:  # the schedule where the checkpoint's last iteration had it
+            self.agent.restore_progress((self.iteration - 1) / self.num_iterations)
 
     def close(self) -> None:
         self.envs.close()

@@ -23,13 +23,15 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from torch import nn
 from torch.nn import functional as F
 
+from miktcli.errors import MiktError
 from miktcli.methods.base import Method
 from miktcli.nets import MLP, ObsNormalizer
-from miktcli.policies import LOG_2PI, ActorCritic, GaussianActorCritic
+from miktcli.policies import LOG_2PI, TEACHER_FREE, ActorCritic, GaussianActorCritic, gaussian_kl
 
 STUDENT_LOGIT_INIT = -0.1  # reference code: p_student starts at softmax([-0.1, 0.01])[0] = 0.4725
 TEACHER_LOGIT_INIT = 0.01
 AUTHORS_OUTPUT_GAIN = math.sqrt(2.0)  # the authors' init gain for the output layers of φ and q_ω
+HANDOVER_WINDOW = "handover-window"  # the schedule's phase just before the drop
 
 
 def lateral_projections(hidden: list[int]) -> nn.ModuleList:
@@ -76,6 +78,22 @@ class MiktConfig(BaseModel):
         "c·mean_j max(0, log r(t) − log p^j), so the teacher is pushed out no faster than the ramp. Why: Adam "
         "normalises each parameter's step, so once L_coupling's gradient outweighs PPO's on a mixing logit, the "
         "logit moves at Adam's rate whatever c·r(t) is, and p^j reaches ~1 long before the ramp ends")
+    handover: Literal["drop", "fold", "fold-linear", "distil"] = Field(
+        "drop",
+        description="how the three-phase schedule hands the policy and value over to the student at the drop. "
+        "drop (the authors' code): the teachers, encoders and q are removed and every layer computes "
+        "tanh(z_student), whatever share p^j the teachers still had. fold: function-preserving to first order: "
+        "each hidden layer's weights and bias are scaled by its student weight p^j and the teachers' mean "
+        "contribution Σ_k p^j_k z^j_k (over recent rollouts) is added to its bias. fold-linear: as fold, but "
+        "the teachers' contribution is replaced by its least-squares fit on the layer's input (a linear map "
+        "plus a bias) instead of its mean. distil: over the handover_window before the drop, the teacher-free "
+        "path is trained to match the mixed policy (KL of the mixed policy to it) and value, then dropped")
+    handover_window: float = Field(
+        0.05, gt=0, lt=1, description="distil: the fraction of training before the drop during which the "
+        "teacher-free path is distilled; fold, fold-linear: unused (their statistics are a running mean over "
+        "recent rollouts, half-life one rollout)")
+    distil_coef: float = Field(1.0, ge=0, description="distil: weight of KL(mixed ‖ teacher-free) + "
+                               "0.5·(V_teacher-free − V_mixed)² in the loss during the handover window")
 
     @model_validator(mode="after")
     def _ramp_has_length(self) -> MiktConfig:
@@ -85,7 +103,25 @@ class MiktConfig(BaseModel):
         if self.coupling_ramp != "coefficient" and self.coupling_schedule != "three-phase":
             raise ValueError(f"coupling_ramp '{self.coupling_ramp}' paces the three-phase ramp; the constant "
                              "schedule has none")
+        if self.handover != "drop" and self.coupling_schedule != "three-phase":
+            raise ValueError(f"handover '{self.handover}' acts at the three-phase schedule's drop; the constant "
+                             "schedule never drops the teachers")
+        if self.handover == "distil" and self.handover_window > self.drop_teacher_at:
+            raise ValueError(f"handover_window ({self.handover_window}) is longer than the training before the "
+                             f"drop ({self.drop_teacher_at})")
         return self
+
+    def phase(self, fraction: float) -> str:
+        """The schedule's phase at a fraction of training; a run keeps a checkpoint at each change. The
+        hand-over window (the ramp's last handover_window) is one for every hand-over, so that every run keeps
+        the checkpoint a distil branch starts from; only distil trains differently in it."""
+        if self.coupling_schedule == "constant":
+            return "coupled"
+        if fraction >= self.drop_teacher_at:
+            return TEACHER_FREE
+        if fraction >= self.drop_teacher_at - self.handover_window:
+            return HANDOVER_WINDOW
+        return "ramp" if fraction > self.ramp_start else "independent"
 
 
 class GaussianDecoder(nn.Module):
@@ -140,22 +176,118 @@ class MiktActorCritic(ActorCritic):
             self.lateral_pi = self.lateral_vf = None
         self.teacher_active = True
         self.coupling_scale, self.coupling_on = 1.0, True
+        self.distilling = False
+        self._fraction: float | None = None  # the schedule's last position (None: not placed yet)
+        # Kept by every three-phase run, whatever its hand-over, so that a fold can be tried later from any of
+        # its checkpoints before the drop (mikt transfer --branch); a few ms per iteration.
+        self.keeps_fold_statistics = config.coupling_schedule == "three-phase"
+        if self.keeps_fold_statistics:
+            self._register_fold_statistics()
         # The ramp's value as a tensor the loss reads, so a compiled loss (PPOConfig.compile_loss) takes it
         # as an input instead of compiling again for every new value; not saved (set_progress sets it).
         self.register_buffer("coupling_weight", torch.tensor(1.0), persistent=False)
 
     # --- schedule -----------------------------------------------------------------------------------
     def set_progress(self, fraction: float) -> None:
+        """Move the schedule on; crossing the drop applies the hand-over (a fold changes the weights)."""
+        handing_over = self._fraction is not None and self.teacher_active
+        self._place(fraction)
+        if handing_over and not self.teacher_active and self.config.handover in ("fold", "fold-linear"):
+            self.fold_teachers_into_student()
+
+    def restore_progress(self, fraction: float) -> None:
+        """Put the schedule where a checkpoint left it, with no hand-over (its weights already have it)."""
+        self._place(fraction)
+
+    def phase(self, fraction: float) -> str:
+        return self.config.phase(fraction)
+
+    def _place(self, fraction: float) -> None:
         cfg = self.config
         if cfg.coupling_schedule == "constant":
             scale, self.teacher_active = 1.0, True
         else:
             ramp = (fraction - cfg.ramp_start) / (cfg.drop_teacher_at - cfg.ramp_start)
             scale, self.teacher_active = min(max(ramp, 0.0), 1.0), fraction < cfg.drop_teacher_at
-        # The float is what diagnostics log; the bool and the tensor are what the loss reads (a compiled loss
-        # guards on the bool, which changes once, and takes the tensor as an input).
+        # The float is what diagnostics log; the bools and the tensor are what the loss reads (a compiled loss
+        # guards on the bools, which change once each, and takes the tensor as an input).
         self.coupling_scale, self.coupling_on = scale, scale > 0
         self.coupling_weight.fill_(scale)
+        self.distilling = cfg.handover == "distil" and cfg.phase(fraction) == HANDOVER_WINDOW
+        self._fraction = fraction
+
+    # --- hand-over by folding ------------------------------------------------------------------------
+    FOLD_DECAY = 0.5  # weight of the older rollouts in the running statistics (half-life: one rollout)
+
+    def _register_fold_statistics(self) -> None:
+        # Buffers, so a checkpoint carries them and a resumed run folds exactly as an uninterrupted one.
+        self.register_buffer("fold_rollouts", torch.zeros(()))
+        for branch, net in (("pi", self.pi), ("vf", self.vf)):
+            inputs = [net.in_features, *net.hidden_sizes[:-1]]
+            for j, (n_in, width) in enumerate(zip(inputs, net.hidden_sizes, strict=True)):
+                self.register_buffer(f"fold_{branch}{j}_c", torch.zeros(width))
+                # second moments of u = [x, 1] and of u with the contribution c (for fold-linear)
+                self.register_buffer(f"fold_{branch}{j}_uu", torch.zeros(n_in + 1, n_in + 1))
+                self.register_buffer(f"fold_{branch}{j}_uc", torch.zeros(n_in + 1, width))
+
+    def optional_state(self) -> set[str]:
+        """Checkpoints written before mikt kept the fold statistics lack them: they load as none kept."""
+        return {k for k in self.state_dict() if k.startswith("fold_")}
+
+    def _layer_terms(self, student: MLP, obs: torch.Tensor, teacher_z: list[list[torch.Tensor]],
+                     weights: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Per hidden layer of the mixed network: (its input x^j, the teachers' part Σ_k p^j_k z^j_k of its
+        pre-activation), as `_mixed` computes them."""
+        terms, x = [], obs
+        for j, (w, b) in enumerate(student.layer_params):
+            c = sum(weights[j, k + 1] * tz[j] for k, tz in enumerate(teacher_z))
+            terms.append((x, c))
+            x = torch.tanh(weights[j, 0] * F.linear(x, w, b) + c)
+        return terms
+
+    def observe_rollout(self, obs: torch.Tensor) -> None:
+        """Running statistics of the teachers' contribution at every layer (for the fold at the drop)."""
+        if not (self.keeps_fold_statistics and self.teacher_active):
+            return
+        embs = self.embeddings(obs)
+        w_pi, w_vf = self.mixing_weights()
+        first = bool(self.fold_rollouts == 0)
+        keep = 0.0 if first else self.FOLD_DECAY
+        for branch, net, nets, lateral, weights in (
+                ("pi", self.pi, [t.pi for t in self.teachers], self.lateral_pi, w_pi),
+                ("vf", self.vf, [t.vf for t in self.teachers], self.lateral_vf, w_vf)):
+            tz = self._teacher_z(nets, embs, lateral)
+            for j, (x, c) in enumerate(self._layer_terms(net, obs, tz, weights)):
+                u = torch.cat([x, torch.ones(x.shape[0], 1)], 1)
+                getattr(self, f"fold_{branch}{j}_c").lerp_(c.mean(0), 1.0 - keep)
+                getattr(self, f"fold_{branch}{j}_uu").lerp_(u.T @ u / u.shape[0], 1.0 - keep)
+                getattr(self, f"fold_{branch}{j}_uc").lerp_(u.T @ c / u.shape[0], 1.0 - keep)
+        self.fold_rollouts += 1
+
+    @torch.no_grad()
+    def fold_teachers_into_student(self) -> None:
+        """Make the teacher-free student compute what the mixed network computed, to first order: layer j's
+        pre-activation p_s (W x + b) + c(x) becomes (p_s W + A) x + (p_s b + a), where a is c's running mean
+        (fold) or (A, a) its least-squares fit on x (fold-linear; ridge 1e-6 of the mean second moment)."""
+        if not self.fold_rollouts:
+            raise MiktError(f"handover '{self.config.handover}': the checkpoint holds no statistics of the "
+                            "teachers' contribution to fold (written before mikt kept them)",
+                            hint="use --handover drop or distil for this run")
+        w_pi, w_vf = self.mixing_weights()
+        for branch, net, weights in (("pi", self.pi, w_pi), ("vf", self.vf, w_vf)):
+            for j, (w, b) in enumerate(net.layer_params):
+                p_student = weights[j, 0]
+                if self.config.handover == "fold-linear":
+                    uu = getattr(self, f"fold_{branch}{j}_uu").double()
+                    uc = getattr(self, f"fold_{branch}{j}_uc").double()
+                    ridge = 1e-6 * float(uu.diagonal().mean()) + 1e-12
+                    fit = torch.linalg.solve(uu + ridge * torch.eye(uu.shape[0], dtype=uu.dtype), uc).float()
+                    linear, offset = fit[:-1].T, fit[-1]
+                else:
+                    linear, offset = torch.zeros_like(w), getattr(self, f"fold_{branch}{j}_c")
+                # in place: the parameters are views into the optimiser's flat buffer
+                w.mul_(p_student).add_(linear)
+                b.mul_(p_student).add_(offset)
 
     # --- forward ------------------------------------------------------------------------------------
     def mixing_weights(self) -> tuple[torch.Tensor, torch.Tensor]:
@@ -296,6 +428,13 @@ class MiktActorCritic(ActorCritic):
         if cfg.mi and cfg.mi_coef:
             mi = sum(dec.neg_log_prob(obs, e).mean() for dec, e in zip(self.decoders, embs, strict=True))
             losses["loss_mi"] = cfg.mi_coef * mi
+        if self.distilling and cfg.distil_coef:
+            # The teacher-free path learns what the mixed network does (targets fixed), with the shared
+            # log-std left out: KL(mixed ‖ teacher-free) of two Gaussians with one std is the means' term alone.
+            log_std = self.log_std.detach()
+            kl = gaussian_kl(mean.detach(), log_std, self.pi(obs), log_std).mean()
+            value_error = 0.5 * (self.vf(obs).squeeze(-1) - value.detach()).square().mean()
+            losses["loss_distil"] = cfg.distil_coef * (kl + value_error)
         return mean, value, losses
 
     def diagnostics(self) -> dict[str, float]:

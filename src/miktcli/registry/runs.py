@@ -177,6 +177,19 @@ class Run:
                               tensors_sha256=tensors_sha256(tensors), run=self.card)
         save_with_card(path or self.checkpoint_path, tensors, card)
 
+    def kept_checkpoint_path(self, name: str) -> Path:
+        """A checkpoint kept at a named point of training (e.g. `before-teacher-free`, just before the drop)."""
+        return self.path / f"checkpoint-{name}.safetensors"
+
+    def kept_checkpoints(self) -> list[str]:
+        return sorted(p.name[len("checkpoint-"):-len(".safetensors")]
+                      for p in self.path.glob("checkpoint-*.safetensors"))
+
+    def keep_checkpoint(self, name: str) -> None:
+        """Copy the last checkpoint to `kept_checkpoint_path(name)` (atomically: a reader sees the old file or
+        the new one, never part of it)."""
+        write_bytes_atomic(self.kept_checkpoint_path(name), self.checkpoint_path.read_bytes())
+
     def load_checkpoint(self, path: Path | None = None) -> tuple[CheckpointCard, dict[str, torch.Tensor]]:
         path = path or self.checkpoint_path
         if not path.exists():

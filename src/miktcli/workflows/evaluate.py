@@ -11,7 +11,7 @@ import torch
 from miktcli import limits
 from miktcli.envs import make_env
 from miktcli.errors import MiktError
-from miktcli.evaluation import EvalResult, run_episodes
+from miktcli.evaluation import evaluate_policy, evaluation_summary  # noqa: F401 - the workflows' names
 from miktcli.limits import check_count
 from miktcli.methods import get_method
 from miktcli.policies import ActorCritic
@@ -59,26 +59,3 @@ def load_policy(registry: Path, target: str, with_teacher: bool = False) -> Load
         raise MiktError("--with-teacher applies to runs (runN), not to teachers")
     teacher = load_teacher(registry, target)
     return LoadedPolicy(teacher.policy, teacher.card.env, teacher.card.ref, teacher.card.clip_actions_for_env)
-
-
-def evaluate_policy(policy: ActorCritic, env_name: str, episodes: int, seed: int, clip_actions: bool,
-                    deterministic: bool = True, capture_episodes: int = 0,
-                    max_frames: int = limits.MAX_VIDEO_FRAMES) -> EvalResult:
-    """Run the policy (normaliser frozen) on fresh episodes; frames from the first `capture_episodes`, at
-    most `max_frames` of them (they are held in memory)."""
-    check_count("episodes", episodes, limits.MAX_EPISODES)
-    check_count("video frames", max_frames, limits.MAX_VIDEO_FRAMES)
-    env = make_env(env_name, render_mode="rgb_array" if capture_episodes else None)
-    policy.obs_normalizer.frozen = True
-    torch.manual_seed(seed)
-    try:
-        with torch.no_grad():
-            return run_episodes(lambda o: policy.act(o, deterministic), env, episodes, seed,
-                                capture_episodes=capture_episodes, clip_actions=clip_actions, max_frames=max_frames)
-    finally:
-        env.close()
-
-
-def evaluation_summary(policy: ActorCritic, env_name: str, episodes: int, seed: int,
-                       clip_actions: bool) -> dict[str, float]:
-    return evaluate_policy(policy, env_name, episodes, seed, clip_actions).summary()

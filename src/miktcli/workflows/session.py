@@ -3,6 +3,7 @@ checkpoints every iteration, holds the run's lock, records how it ended, resumes
 
 from __future__ import annotations
 
+import copy
 import math
 import tempfile
 from collections.abc import Callable, Generator, Iterator
@@ -15,15 +16,17 @@ import torch
 from miktcli import limits
 from miktcli.envs import load_spec, make_env
 from miktcli.errors import MiktError
+from miktcli.evaluation import evaluation_summary
 from miktcli.limits import check_count
 from miktcli.methods import get_method
-from miktcli.policies import ActorCritic
-from miktcli.ppo import PPOTrainer, state_misfit
+from miktcli.policies import TEACHER_FREE, ActorCritic
+from miktcli.ppo import PPOTrainer, complete_state, state_misfit
 from miktcli.registry.cards import CodeSegment, RunConfig, TeacherRef, code_version, now, package_versions
 from miktcli.registry.runs import Run, RunLock, create_run
 from miktcli.registry.teachers import load_run_teachers
 
 MAX_SEED = 2**32 - 1  # numpy's and torch's seeding range
+EVAL_SEED_OFFSET = 10_000  # evaluation episodes never reuse training seeds
 
 
 def whole_rollouts(steps: int, batch_size: int) -> int:
@@ -105,6 +108,7 @@ class Job:
             self.trainer = PPOTrainer(self.agent, lambda: make_env(self.spec), self.config, run.card.total_steps,
                                       seed=run.card.seed)
             self.best_return = -math.inf
+            self.eval_episodes = run.card.config.eval_episodes or 10  # cards before schema 3: the CLI default
             if run.checkpoint_path.exists():
                 ckpt, tensors = run.load_checkpoint()
                 try:
@@ -140,11 +144,12 @@ class Job:
             trainer.close()
         self.lock.release()
 
-    def iterations(self) -> Iterator[dict[str, Any]]:
-        """Train to the end, checkpointing after every iteration."""
+    def iterations(self) -> Iterator[dict[str, Any] | Phase]:
+        """Train to the end, checkpointing after every iteration (and keeping one at each change of phase)."""
         run, trainer = self.run, self.trainer
         run.save_card(status="running", error=None,
                       code_history=continued_code_history(run.card.code_history, trainer.global_step))
+        yield from self._phase_change()
         for metrics in trainer.run():
             if math.isfinite(metrics["return_mean"]):
                 self.best_return = max(self.best_return, metrics["return_mean"])
@@ -154,6 +159,42 @@ class Job:
             run.append_metrics(metrics)
             run.save_card(steps_done=trainer.global_step)
             yield metrics
+            yield from self._phase_change()
+
+    def _phase_change(self) -> Iterator[Phase]:
+        """Between two iterations where the schedule changes phase: keep the checkpoint as
+        `checkpoint-before-PHASE` (to branch from it later), and at the hand-over to the teacher-free student
+        evaluate both sides of it on that same checkpoint."""
+        trainer, agent, run = self.trainer, self.agent, self.run
+        if not 0 < trainer.iteration < trainer.num_iterations:
+            return
+        last, upcoming = trainer.iteration - 1, trainer.iteration
+        before, after = (agent.phase(i / trainer.num_iterations) for i in (last, upcoming))
+        if before == after:
+            return
+        run.keep_checkpoint(f"before-{after}")
+        if after == TEACHER_FREE and self.method.with_teachers is not None:
+            yield Phase("hand-over", f"evaluating with and without the teachers, {self.eval_episodes} episodes")
+            run.save_card(result={**run.card.result, "handover": self._evaluate_handover(upcoming)})
+
+    def _evaluate_handover(self, upcoming: int) -> dict[str, Any]:
+        """The deterministic return of the mixed policy just before the drop and of the teacher-free student
+        right after the hand-over, from the same weights and on the same evaluation episodes."""
+        agent, trainer = self.agent, self.trainer
+        clip, seed = self.config.clip_actions_for_env, EVAL_SEED_OFFSET + self.run.card.seed
+        rng = torch.random.get_rng_state()  # evaluation seeds torch; training's own generators are untouched
+        try:
+            with torch.no_grad():
+                mixed = evaluation_summary(copy.deepcopy(agent), self.run.card.env, self.eval_episodes, seed, clip)
+                # the hand-over itself (what the next iteration's schedule step would do), then the student
+                agent.set_progress(upcoming / trainer.num_iterations)
+                alone = evaluation_summary(self.method.student(agent), self.run.card.env, self.eval_episodes,
+                                           seed, clip)
+        finally:
+            torch.random.set_rng_state(rng)
+        kept = alone["return_mean"] / mixed["return_mean"] if mixed["return_mean"] > 0 else None
+        return {"at_step": trainer.global_step, "with_teachers": mixed, "without_teachers": alone,
+                "kept_fraction": kept}
 
     @property
     def final_return(self) -> float | None:
@@ -191,5 +232,5 @@ def agent_from_checkpoint(run: Run, registry: Path) -> ActorCritic:
     problem = state_misfit(agent, state)
     if problem:
         raise MiktError(f"{run.checkpoint_path}: {problem}")
-    agent.load_state_dict(state)
+    agent.load_state_dict(complete_state(agent, state))
     return agent

@@ -22,10 +22,9 @@ from miktcli.registry.cards import RunConfig, TeacherCard, TeacherRef, now
 from miktcli.registry.files import save_with_card, tensors_sha256
 from miktcli.registry.runs import Run
 from miktcli.registry.teachers import Teacher, load_teacher
-from miktcli.workflows.evaluate import evaluation_summary
-from miktcli.workflows.session import Event, Job, Phase, new_run
+from miktcli.evaluation import evaluation_summary
+from miktcli.workflows.session import EVAL_SEED_OFFSET, Event, Job, Phase, new_run
 
-EVAL_SEED_OFFSET = 10_000  # evaluation episodes never reuse training seeds
 DEFAULT_HIDDEN = [64, 64]
 
 
@@ -152,6 +151,8 @@ def finish_transfer(job: Job, episodes: int) -> dict[str, Any]:
     seed = EVAL_SEED_OFFSET + run.card.seed
     result: dict[str, Any] = {"final_train_return": job.final_return,
                               "best_train_return": job.best_return if math.isfinite(job.best_return) else None}
+    if "handover" in run.card.result:  # recorded at the drop (Job._phase_change)
+        result["handover"] = run.card.result["handover"]
     with torch.no_grad():
         if method.with_teachers is not None:
             result["final_mixing"] = mixing_weights(agent)  # as trained (1.0 where the schedule dropped them)

@@ -1,0 +1,165 @@
+"""The hand-over at the three-phase schedule's drop: drop (the authors'), fold, fold-linear and distil."""
+
+import json
+
+import pytest
+import torch
+from pydantic import ValidationError
+from torch.nn import functional as F
+from typer.testing import CliRunner
+
+from miktcli.cli.app import app
+
+from miktcli.methods.mikt import MiktActorCritic, MiktConfig
+from miktcli.policies import GaussianActorCritic
+
+
+def frozen_teacher(obs_dim, act_dim):
+    torch.manual_seed(1)
+    t = GaussianActorCritic(obs_dim, act_dim, (64, 64), (64, 64))
+    t.requires_grad_(False)
+    return t
+
+
+def trained_like_agent(handover, teachers=1, **options):
+    """An agent whose teachers still hold a real share (logits moved from their initial values)."""
+    torch.manual_seed(0)
+    ts = [frozen_teacher(11, 3), frozen_teacher(17, 6)][:teachers]
+    agent = MiktActorCritic(13, 4, ts, MiktConfig(handover=handover, **options))
+    with torch.no_grad():
+        for logits in (agent.mix_logits_pi, agent.mix_logits_vf):
+            logits[:, 0] += torch.tensor([1.5, 1.0])  # p_student ≈ 0.8 and ≈ 0.7
+    return agent
+
+
+def layer0(agent, obs):
+    w, b = agent.pi.layer_params[0]
+    return F.linear(obs, w, b)
+
+
+def mixed_layer0(agent, obs):
+    w_pi, _ = agent.mixing_weights()
+    tz = agent._teacher_z([t.pi for t in agent.teachers], agent.embeddings(obs), agent.lateral_pi)
+    return agent._layer_terms(agent.pi, obs, tz, w_pi)[0], w_pi[0, 0] * layer0(agent, obs)
+
+
+def hand_over(agent, obs):
+    """Train-like sequence: a rollout before the drop, then the schedule crosses it."""
+    agent.set_progress(0.85)
+    with torch.no_grad():
+        agent.observe_rollout(obs)
+    agent.set_progress(0.9)
+    assert not agent.teacher_active
+
+
+@pytest.mark.parametrize("teachers", [1, 2])
+def test_fold_keeps_each_pre_activation_up_to_the_teachers_deviation_from_their_mean(teachers):
+    agent, obs = trained_like_agent("fold", teachers), torch.randn(512, 13)
+    with torch.no_grad():
+        (_, c), student_part = mixed_layer0(agent, obs)
+    hand_over(agent, obs)
+    with torch.no_grad():
+        folded = layer0(agent, obs)
+    torch.testing.assert_close(folded, student_part + c.mean(0), atol=1e-5, rtol=1e-5)
+
+
+def mixed_vs_student_gap(handover, obs):
+    agent = trained_like_agent(handover)
+    with torch.no_grad():
+        mixed = agent.action_mean(obs), agent.value(obs)
+    hand_over(agent, obs)
+    student = agent.student_only()
+    with torch.no_grad():
+        alone = student.action_mean(obs), student.value(obs)
+    return [float((a - b).square().mean()) for a, b in zip(mixed, alone, strict=True)]
+
+
+def test_each_fold_is_closer_to_the_mixed_network_than_dropping_the_teachers():
+    obs = torch.randn(2048, 13)
+    drop, fold, linear = (mixed_vs_student_gap(h, obs) for h in ("drop", "fold", "fold-linear"))
+    for branch in (0, 1):  # policy mean, value
+        assert linear[branch] < fold[branch] < drop[branch]
+
+
+def test_drop_leaves_the_weights_as_they_are():
+    agent, obs = trained_like_agent("drop"), torch.randn(64, 13)
+    before = {k: v.clone() for k, v in agent.pi.state_dict().items()}
+    hand_over(agent, obs)
+    assert all(torch.equal(before[k], v) for k, v in agent.pi.state_dict().items())
+
+
+def test_a_restored_schedule_does_not_fold_again_and_a_resume_before_the_drop_folds_the_same():
+    obs = torch.randn(256, 13)
+    live = trained_like_agent("fold-linear")
+    live.set_progress(0.85)
+    with torch.no_grad():
+        live.observe_rollout(obs)
+    checkpoint = {k: v.clone() for k, v in live.state_dict().items()}  # holds the fold statistics
+    live.set_progress(0.9)
+
+    resumed = trained_like_agent("fold-linear")
+    resumed.load_state_dict(checkpoint)
+    resumed.restore_progress(0.85)  # as PPOTrainer.load_state does
+    resumed.set_progress(0.9)
+    for k, v in live.state_dict().items():
+        torch.testing.assert_close(resumed.state_dict()[k], v, rtol=0, atol=0)
+
+    after = {k: v.clone() for k, v in live.state_dict().items()}
+    again = trained_like_agent("fold-linear")
+    again.load_state_dict(after)
+    again.restore_progress(0.9)  # resumed after the drop: the weights are folded already
+    again.set_progress(0.95)
+    for k, v in after.items():
+        assert torch.equal(again.state_dict()[k], v), k
+
+
+def test_distil_trains_only_the_teacher_free_path_and_only_in_its_window():
+    agent, obs = trained_like_agent("distil", handover_window=0.1), torch.randn(64, 13)
+    agent.set_progress(0.7)
+    assert "loss_distil" not in agent.evaluate_actions(obs)[2]
+    agent.set_progress(0.85)
+    assert agent.phase(0.85) == "handover-window"
+    loss = agent.evaluate_actions(obs)[2]["loss_distil"]
+    assert loss > 0
+    agent.zero_grad(set_to_none=True)
+    loss.backward()
+    def reached(ps):
+        return any(p.grad is not None and p.grad.abs().sum() > 0 for p in ps)
+    assert reached(agent.pi.parameters()) and reached(agent.vf.parameters())
+    assert not reached(agent.encoders.parameters())
+    assert not reached([agent.mix_logits_pi, agent.mix_logits_vf, agent.log_std])
+
+
+def test_the_options_name_what_they_need():
+    with pytest.raises(ValidationError, match="constant schedule never drops"):
+        MiktConfig(handover="fold", coupling_schedule="constant")
+    with pytest.raises(ValidationError, match="longer than the training before the drop"):
+        MiktConfig(handover="distil", handover_window=0.95)
+    assert MiktConfig().handover == "drop"  # the authors' behaviour stays the default
+    assert [MiktConfig().phase(f) for f in (0.1, 0.5, 0.9)] == ["independent", "ramp", "teacher-free"]
+
+
+# --- a whole run ---------------------------------------------------------------------------------------------
+
+def mikt(*args):
+    result = CliRunner().invoke(app, [str(a) for a in args])
+    assert result.exit_code == 0, result.output
+    return result.stdout
+
+
+# five iterations: fractions 0, 0.2, 0.4, 0.6, 0.8; the ramp from iteration 2, the drop at iteration 3
+SHORT_SCHEDULE = ("--steps", 10240, "--ramp-start", 0.2, "--drop-teacher-at", 0.5, "--eval-episodes", 2)
+
+
+@pytest.mark.parametrize("handover", ["drop", "fold"])
+def test_a_run_records_both_sides_of_the_hand_over_and_keeps_the_checkpoint_before_it(registry, handover):
+    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+    result = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE,
+                             "--handover", handover, "--json"))
+    record = result["handover"]
+    assert record["at_step"] == 6144
+    assert record["with_teachers"]["episodes"] == record["without_teachers"]["episodes"] == 2
+    run = registry / "runs" / result["run"]
+    assert json.loads((run / "run.json").read_text())["result"]["handover"] == record
+    kept = sorted(p.name for p in run.glob("checkpoint-*.safetensors"))
+    assert kept == ["checkpoint-before-ramp.safetensors", "checkpoint-before-teacher-free.safetensors"]
