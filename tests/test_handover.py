@@ -9,7 +9,6 @@ from torch.nn import functional as F
 from typer.testing import CliRunner
 
 from miktcli.cli.app import app
-
 from miktcli.methods.mikt import MiktActorCritic, MiktConfig
 from miktcli.policies import GaussianActorCritic
 

@@ -13,6 +13,7 @@ from miktcli import limits
 from miktcli.envs import make_env
 from miktcli.envs.failures import env_failure
 from miktcli.limits import check_count
+from miktcli.policies import ActorCritic
 from miktcli.render import render_frame
 
 

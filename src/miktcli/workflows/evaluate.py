@@ -6,13 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import NamedTuple
 
-import torch
-
-from miktcli import limits
-from miktcli.envs import make_env
 from miktcli.errors import MiktError
 from miktcli.evaluation import evaluate_policy, evaluation_summary  # noqa: F401 - the workflows' names
-from miktcli.limits import check_count
 from miktcli.methods import get_method
 from miktcli.policies import ActorCritic
 from miktcli.registry.runs import RUN_TARGET_RE, open_run

@@ -14,6 +14,7 @@ from miktcli import limits
 from miktcli.compile_choice import decide_compile
 from miktcli.envs import load_spec
 from miktcli.errors import MiktError, TeacherMismatchError, describe_validation_error
+from miktcli.evaluation import evaluation_summary
 from miktcli.limits import check_count
 from miktcli.methods import get_method
 from miktcli.policies import GaussianActorCritic
@@ -22,7 +23,6 @@ from miktcli.registry.cards import RunConfig, TeacherCard, TeacherRef, now
 from miktcli.registry.files import save_with_card, tensors_sha256
 from miktcli.registry.runs import Run
 from miktcli.registry.teachers import Teacher, load_teacher
-from miktcli.evaluation import evaluation_summary
 from miktcli.workflows.session import EVAL_SEED_OFFSET, Event, Job, Phase, new_run
 
 DEFAULT_HIDDEN = [64, 64]
