@@ -162,3 +162,42 @@ def test_a_run_records_both_sides_of_the_hand_over_and_keeps_the_checkpoint_befo
     assert json.loads((run / "run.json").read_text())["result"]["handover"] == record
     kept = sorted(p.name for p in run.glob("checkpoint-*.safetensors"))
     assert kept == ["checkpoint-before-ramp.safetensors", "checkpoint-before-teacher-free.safetensors"]
+
+
+def mikt_fails(*args, code=1):
+    result = CliRunner().invoke(app, [str(a) for a in args])
+    assert result.exit_code == code, result.output
+    return result.output
+
+
+def test_a_branch_starts_from_the_kept_checkpoint_and_hands_over_its_own_way(registry):
+    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+    source = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE, "--json"))
+    branch = json.loads(mikt("transfer", "--branch", source["run"], "--at", "before-teacher-free",
+                             "--handover", "fold", "--json"))
+    card = json.loads((registry / "runs" / branch["run"] / "run.json").read_text())
+    assert card["branched_from"] == {"run": source["run"], "checkpoint": "before-teacher-free", "step": 6144}
+    assert card["config"]["options"]["handover"] == "fold"
+    assert card["config"]["options"]["ramp_start"] == 0.2  # the rest is the source's
+    assert card["config"]["eval_episodes"] == 2
+    # the same weights before the hand-over: the mixed policy scores the same on the same episodes
+    assert branch["handover"]["with_teachers"] == source["handover"]["with_teachers"]
+    rows = [json.loads(line) for line in (registry / "runs" / branch["run"] / "metrics.jsonl").read_text().splitlines()]
+    source_rows = [json.loads(line) for line in
+                   (registry / "runs" / source["run"] / "metrics.jsonl").read_text().splitlines()]
+    assert [r["steps"] for r in rows] == [2048, 4096, 6144, 8192, 10240]
+    assert rows[:3] == source_rows[:3]
+
+
+def test_a_branch_refuses_what_it_cannot_do_before_a_run_exists(registry):
+    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+    source = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE, "--json"))["run"]
+    runs_before = sorted(p.name for p in (registry / "runs").iterdir())
+    out = mikt_fails("transfer", "--branch", source, "--at", "before-nothing")
+    assert "kept no checkpoint 'before-nothing'" in out and "before-teacher-free" in out
+    out = mikt_fails("transfer", "--branch", source, "--at", "before-teacher-free", "--lateral", "projection")
+    assert "do not fit" in out
+    assert "go together" in mikt_fails("transfer", "--branch", source, code=2)
+    assert "cannot be combined with --branch" in mikt_fails("transfer", "--branch", source, "--at",
+                                                            "before-teacher-free", "--steps", 4096, code=2)
+    assert sorted(p.name for p in (registry / "runs").iterdir()) == runs_before

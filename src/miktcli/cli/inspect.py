@@ -74,10 +74,13 @@ def inspect(
     if run.damaged_metric_lines:
         err.print(f"warning: skipped {run.damaged_metric_lines} damaged line(s) in {run.metrics_path}")
     if as_json:
-        print_json({"card": {**run.card.model_dump(mode="json"), "status": run.status}, "metrics": metrics})
+        print_json({"card": {**run.card.model_dump(mode="json"), "status": run.status},
+                    "kept_checkpoints": run.kept_checkpoints(), "metrics": metrics})
         return
     if not (coupling or curve):
-        render_card({**run.card.model_dump(mode="json", exclude={"config"}), "status": run.status})
+        # kept checkpoints: the points `mikt transfer --branch RUN --at NAME` can start from
+        render_card({**run.card.model_dump(mode="json", exclude={"config"}), "status": run.status,
+                     "kept_checkpoints": ", ".join(run.kept_checkpoints()) or "none"})
         err.print("Hint: --coupling for the mixing weights, --curve for the learning curve, --json for all.")
         return
     if coupling:

@@ -41,6 +41,8 @@ Examples:
   mikt transfer --from centipede-four --to centipede-eight --method mlpp
 
   mikt transfer --resume run7
+
+  mikt transfer --branch run7 --at before-teacher-free --handover fold
 """
 
 
@@ -62,6 +64,27 @@ def flag_hint(error: MiktError) -> str | None:
     return None
 
 
+def start_branch(ctx: typer.Context, registry, source: str | None, at: str | None, method: str):
+    from miktcli.methods import get_method
+    from miktcli.registry.runs import open_run
+    from miktcli.workflows.branch import branch_run
+
+    if not (source and at):
+        raise typer.BadParameter("--branch RUN and --at CHECKPOINT go together", ctx=ctx,
+                                 param_hint="'--branch'" if not source else "'--at'")
+    given = given_on_command_line(ctx, {p.name for p in ctx.command.params} - BRANCH_COMPATIBLE)
+    if given:
+        raise typer.BadParameter("cannot be combined with --branch: a branch keeps its source run's settings "
+                                 "but the method options given", ctx=ctx, param_hint=f"'{given[0]}'")
+    source_method = open_run(registry, source).card.method
+    options = parse_method_options(ctx, source_method, get_method(source_method).options) or {}
+    return branch_run(registry, source, at, options, command_line())
+
+
+# what --branch may be given beside method options: the branch point, output and where the registry is
+BRANCH_COMPATIBLE = {"branch", "at", "as_json", "registry", "eval_episodes"}
+
+
 def transfer(
     ctx: typer.Context,
     teacher: list[str] = typer.Option(None, "--from", help="Teacher NAME or NAME@vN; repeat for several teachers."),
@@ -78,6 +101,10 @@ def transfer(
     eval_episodes: int = typer.Option(10, "--eval-episodes", min=1, max=limits.MAX_EPISODES,
                                       help="Episodes for the final evaluation (recorded; kept on --resume)."),
     resume: str = typer.Option(None, "--resume", help="Continue an interrupted transfer run."),
+    branch: str = typer.Option(None, "--branch", help="A new run from a checkpoint RUN kept (--at), with the "
+                               "method options given here changed; e.g. another --handover on the same weights."),
+    at: str = typer.Option(None, "--at", help="With --branch: the kept checkpoint, e.g. before-teacher-free "
+                           "(`mikt inspect RUN` lists them)."),
     as_json: JsonOption = False,
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
@@ -87,9 +114,12 @@ def transfer(
 
     setup_torch()
     reg = registry
-    if resume:
-        refuse_options_with_resume(ctx)
-        run = open_resumable(reg, resume, "transfer")
+    if branch or at or resume:
+        if branch or at:
+            run = start_branch(ctx, reg, branch, at, method)
+        else:
+            refuse_options_with_resume(ctx)
+            run = open_resumable(reg, resume, "transfer")
         if run.card.config.eval_episodes is not None and not given_on_command_line(ctx, {"eval_episodes"}):
             eval_episodes = run.card.config.eval_episodes  # what the run was started with, not the default
     else:

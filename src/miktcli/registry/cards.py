@@ -17,9 +17,9 @@ from miktcli.ppo import PPOConfig
 # A card is written with the newest version this code knows; a reader refuses a newer one with a message
 # instead of a validation error about a field it has never heard of. Every version reads every older one.
 # Teacher: 2 adds `code_history`, 3 `obs_clip`. Run: 2 adds the status `created` and `code_history`, 3
-# `config.eval_episodes`.
+# `config.eval_episodes`, 4 `branched_from` and `config.ppo.flush_denormal`.
 TEACHER_SCHEMA_VERSION = 3
-RUN_SCHEMA_VERSION = 3
+RUN_SCHEMA_VERSION = 4
 
 
 class TeacherVersion(NamedTuple):
@@ -184,6 +184,16 @@ class RunConfig(BaseModel):
         return compat.run_config(data)
 
 
+class BranchPoint(BaseModel):
+    """Where a branched run started: another run's kept checkpoint (see workflows/branch.py)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    run: str
+    checkpoint: str
+    step: int = Field(ge=0)
+
+
 # `created`: the folder exists and nothing has trained yet (a study's prepared cell); training sets `running`.
 RunStatus = Literal["created", "running", "completed", "interrupted", "failed"]
 
@@ -212,3 +222,4 @@ class RunCard(BaseModel):
     code_history: list[CodeSegment] = Field(default_factory=list)
     result: dict[str, Any] = Field(default_factory=dict)
     error: str | None = None
+    branched_from: BranchPoint | None = None

@@ -167,7 +167,10 @@ class Run:
 
     def truncate_metrics(self, iteration: int) -> None:
         """Drop rows newer than the checkpoint being resumed, so the curve has no duplicates."""
-        rows = [r for r in self.read_metrics() if r.get("iteration", 0) <= iteration]
+        self.write_metrics([r for r in self.read_metrics() if r.get("iteration", 0) <= iteration])
+
+    def write_metrics(self, rows: list[dict[str, Any]]) -> None:
+        """Replace the metrics (and their TensorBoard view) with `rows`."""
         write_text_atomic(self.metrics_path, "".join(json.dumps(r) + "\n" for r in rows))
         write_bytes_atomic(self.events_path, event_records(rows))
 
