@@ -198,11 +198,44 @@ def _note_lines(notes: list[str]) -> list[str]:
     return ["Left out:", "", *(f"- {note}" for note in notes), ""] if notes else []
 
 
+def _handover_section(summary: StudySummary) -> list[str]:
+    if not summary.handovers:
+        return []
+    lines = ["## The hand-over at the teacher drop", "",
+             "*with* / *without*: the deterministic return (10-episode mean) of the mixed policy on the last "
+             "checkpoint before the drop and of the teacher-free student right after the hand-over, on the same "
+             "episodes; *kept* = without / with. *before* / *after*: the mean per-update return (episodes "
+             "finished in each rollout) over the 50k steps on each side of the drop.", "",
+             "| cell (teachers > target) | method | seed | run | hand-over | at step | with | without | kept | "
+             "before | after | change |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for key, f in summary.handovers:
+        kept = "—" if f.kept is None else f"{f.kept:.0%}"
+        lines.append(f"| {' | '.join(key.split('|'))} | {f.run} | {f.handover} | {f.at_step:,} | "
+                     f"{f.with_teachers:,.0f} | {f.without_teachers:,.0f} | {kept} | {f.before:,.0f} | "
+                     f"{f.after:,.0f} | {f.change:+,.0f} |")
+    return [*lines, ""]
+
+
+def _slowdown_section(summary: StudySummary) -> list[str]:
+    if not summary.slowdowns:
+        return []
+    lines = ["## Runs whose update slowed as they trained", "",
+             "The rolling median (20 iterations) of update time over rollout time reached twice its lowest in "
+             "the same phase (a busy machine slows both and cancels out). Such a run took longer than it should "
+             "have; what it learned is not affected.", "",
+             "| cell (teachers > target) | method | seed | run | phase | from step | factor |",
+             "|---|---|---|---|---|---|---|"]
+    lines += [f"| {' | '.join(key.split('|'))} | {run_id} | {r['phase']} | {r['step']:,} | {r['factor']:.1f}× |"
+              for key, run_id, r in summary.slowdowns]
+    return [*lines, ""]
+
+
 def render_markdown(summary: StudySummary) -> str:
     lines = _intro(summary)
     if summary.across_pairs is not None:
         lines += across_pairs_lines(summary.across_pairs)
     for pair in summary.pairs:
         lines += _pair_section(pair, summary.grid.baseline)
+    lines += _handover_section(summary) + _slowdown_section(summary)
     return "\n".join(lines + _runs_section(summary)) + "\n"
 

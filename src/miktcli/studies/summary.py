@@ -14,6 +14,7 @@ import numpy as np
 from miktcli.registry.runs import Run
 from miktcli.stats import compare
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key, file_slug
+from miktcli.studies.handover import HandoverFigures, handover_figures
 
 if TYPE_CHECKING:
     from miktcli.studies.aggregates import AcrossPairs
@@ -224,6 +225,8 @@ class StudySummary:
     # each teacher reference of the grid → the versions the study's runs used (more than one: a mix)
     teachers: dict[str, list[TeacherVersion]] = field(default_factory=dict)
     across_pairs: AcrossPairs | None = None  # studies.aggregates, added by the report (it reads the study folder)
+    handovers: list[tuple[str, HandoverFigures]] = field(default_factory=list)  # cell key, its run's hand-over
+    slowdowns: list[tuple[str, str, dict[str, Any]]] = field(default_factory=list)  # cell key, run id, record
 
 
 def _mark_indices(marks: list[int], steps: np.ndarray | None) -> dict[int, int]:
@@ -278,7 +281,12 @@ def summarise(grid: Grid, cell_runs: dict[str, str], run_of: RunOf) -> StudySumm
         comparisons = compare_methods({m.name: m.per_seed for m in methods if m.runs})
         pairs.append(PairSummary(pair.name, file_slug(pair.name), marks, labels, methods, comparisons))
     cells = [(key, run_id, run_of(key)) for key, run_id in cell_runs.items()]
-    return StudySummary(grid, pairs, left_out, cells, teacher_versions(grid, {key: run for key, _, run in cells}))
+    completed = [(key, run) for key, _, run in cells if run is not None and run.card.status == "completed"]
+    handovers = [(key, f) for key, f in ((key, handover_figures(run)) for key, run in completed) if f is not None]
+    slowdowns = [(key, run.id, record) for key, _, run in cells if run is not None
+                 for record in run.card.result.get("slowdowns", [])]
+    return StudySummary(grid, pairs, left_out, cells, teacher_versions(grid, {key: run for key, _, run in cells}),
+                        handovers=handovers, slowdowns=slowdowns)
 
 
 def teacher_versions(grid: Grid, run_of_cell: dict[str, Run | None]) -> dict[str, list[TeacherVersion]]:

@@ -24,6 +24,7 @@ from miktcli.ppo import PPOTrainer, complete_state, state_misfit
 from miktcli.registry.cards import CodeSegment, RunConfig, TeacherRef, code_version, now, package_versions
 from miktcli.registry.runs import Run, RunLock, create_run
 from miktcli.registry.teachers import load_run_teachers
+from miktcli.workflows.slowdown import SlowdownWatch, update_ratio
 
 MAX_SEED = 2**32 - 1  # numpy's and torch's seeding range
 EVAL_SEED_OFFSET = 10_000  # evaluation episodes never reuse training seeds
@@ -118,6 +119,8 @@ class Job:
                                     hint="the checkpoint is damaged or from another run") from err
                 self.best_return = ckpt.progress.get("best_return", -math.inf)
                 run.truncate_metrics(ckpt.iteration)
+            self.slowdowns = SlowdownWatch([(self._phase_of(r["iteration"]), r["steps"], update_ratio(r))
+                                            for r in run.read_metrics()])
         except BaseException as err:
             self._record_end(err)
             self.lock.release()
@@ -157,9 +160,18 @@ class Job:
             # Checkpoint first: a metrics row never describes an iteration the checkpoint lacks.
             run.save_checkpoint(trainer.state_tensors(), trainer.iteration, trainer.global_step, progress)
             run.append_metrics(metrics)
+            slowed = self.slowdowns.add(self._phase_of(trainer.iteration), trainer.global_step,
+                                        update_ratio(metrics))
+            if slowed is not None:  # kept in the card, so `inspect` and study reports say so
+                run.save_card(result={**run.card.result,
+                                      "slowdowns": [*run.card.result.get("slowdowns", []), slowed]})
             run.save_card(steps_done=trainer.global_step)
             yield metrics
             yield from self._phase_change()
+
+    def _phase_of(self, iteration: int) -> str:
+        """The schedule's phase during an iteration (1-based, as metrics rows count them)."""
+        return self.agent.phase((iteration - 1) / self.trainer.num_iterations)
 
     def _phase_change(self) -> Iterator[Phase]:
         """Between two iterations where the schedule changes phase: keep the checkpoint as

@@ -53,8 +53,10 @@ def publish_teacher_from_job(job: Job) -> TeacherCard:
         code_history=card.code_history, source_run=card.run_id, created=now(), tensors_sha256="",
     )
     published = publish_teacher(job.registry, teacher, job.agent)
+    slowdowns = {"slowdowns": job.run.card.result["slowdowns"]} if "slowdowns" in job.run.card.result else {}
     job.run.save_card(status="completed", result={
         "teacher": published.ref, "final_return": published.final_return, "best_return": published.best_return,
+        **slowdowns,
     })
     return published
 

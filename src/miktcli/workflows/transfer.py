@@ -151,8 +151,9 @@ def finish_transfer(job: Job, episodes: int) -> dict[str, Any]:
     seed = EVAL_SEED_OFFSET + run.card.seed
     result: dict[str, Any] = {"final_train_return": job.final_return,
                               "best_train_return": job.best_return if math.isfinite(job.best_return) else None}
-    if "handover" in run.card.result:  # recorded at the drop (Job._phase_change)
-        result["handover"] = run.card.result["handover"]
+    for recorded in ("handover", "slowdowns"):  # recorded while training (Job)
+        if recorded in run.card.result:
+            result[recorded] = run.card.result[recorded]
     with torch.no_grad():
         if method.with_teachers is not None:
             result["final_mixing"] = mixing_weights(agent)  # as trained (1.0 where the schedule dropped them)
