@@ -386,3 +386,15 @@ def test_a_malformed_file_of_cat_figures_is_a_one_line_error(tmp_path):
     bad.write_text("windows = [")
     with pytest.raises(SystemExit, match="not a file of CAT's figures"):
         load_script("multi_teacher_report").load_cat(bad)
+
+
+def test_paired_numerics_pairs_seeds_and_reads_each_run_at_the_mark(tmp_path):
+    out = tmp_path / "paired.json"
+    subprocess.run([sys.executable, str(BENCHMARKS / "paired_numerics.py"), "--seeds", "0-1", "--mark", "2048",
+                    "--base", "teacher train hopper --steps 8192", "--a=--no-compile", "--b=--no-compile",
+                    "--out", str(out)], check=True, capture_output=True, timeout=600)
+    summary = json.loads(out.read_text())
+    assert [r["seed"] for r in summary["rows"]] == [0, 1]
+    # the same command twice: the same bits, so no difference and no lower seed
+    assert all(r["a"] == r["b"] for r in summary["rows"]) and summary["a_lower_on"] == 0
+    assert summary["rows"][0]["a"] != summary["rows"][1]["a"]  # two seeds, two runs
