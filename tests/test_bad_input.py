@@ -8,8 +8,8 @@ import shutil
 import pytest
 import torch
 
+from helpers import mikt, rewrite_teacher
 from miktcli.registry.runs import open_run
-from test_hardening import mikt, rewrite_teacher
 
 TINY = ("--steps", 2048)
 
@@ -286,8 +286,8 @@ def test_teacher_list_names_files_stored_under_another_name(registry):
     shutil.copy(registry / "teachers" / "tiny" / "v1.safetensors", copy)
     r = mikt("teacher", "list", code=1)
     assert "copy@v7" in r.output and "1 teacher file(s)" in r.output
+    from helpers import runner
     from miktcli.cli.app import app
-    from test_hardening import runner
 
     result = runner.invoke(app, ["teacher", "list", "--json"])  # stdout: the JSON; stderr: the error line
     assert result.exit_code == 1

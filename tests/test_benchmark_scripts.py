@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_study import fake_run
+from helpers import fake_run
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 

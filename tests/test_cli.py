@@ -1,17 +1,8 @@
 import json
 
 import pytest
-from typer.testing import CliRunner
 
-from miktcli.cli.app import app
-
-runner = CliRunner()
-
-
-def mikt(*args, code=0):
-    result = runner.invoke(app, [str(a) for a in args])
-    assert result.exit_code == code, result.output
-    return result
+from helpers import mikt
 
 
 def test_envs_json_parses():

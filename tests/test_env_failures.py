@@ -3,8 +3,8 @@ the spec, in training and in evaluation, never "internal error ... please report
 
 import pytest
 
+from helpers import mikt, spec_dir
 from miktcli.errors import MiktError
-from test_hardening import mikt, spec_dir
 
 BREAKS_AT_STEP = ('name = "badstep"\nfamily = "gymnasium"\nid = "Hopper-v5"\nobs_dim = 11\nact_dim = 3\n'
                   'max_episode_steps = 1000\n[kwargs]\nhealthy_z_range = "ab"\n')

@@ -9,7 +9,7 @@ from pathlib import Path
 import gymnasium as gym
 import pytest
 
-from test_cli import mikt
+from helpers import mikt
 
 ASSETS = Path(gym.__file__).parent / "envs" / "mujoco" / "assets"
 

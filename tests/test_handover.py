@@ -6,9 +6,8 @@ import pytest
 import torch
 from pydantic import ValidationError
 from torch.nn import functional as F
-from typer.testing import CliRunner
 
-from miktcli.cli.app import app
+from helpers import mikt
 from miktcli.methods.mikt import MiktActorCritic, MiktConfig
 from miktcli.policies import GaussianActorCritic
 
@@ -140,12 +139,6 @@ def test_the_options_name_what_they_need():
 
 # --- a whole run ---------------------------------------------------------------------------------------------
 
-def mikt(*args):
-    result = CliRunner().invoke(app, [str(a) for a in args])
-    assert result.exit_code == 0, result.output
-    return result.stdout
-
-
 # five iterations: fractions 0, 0.2, 0.4, 0.6, 0.8; the ramp from iteration 2, the drop at iteration 3
 SHORT_SCHEDULE = ("--steps", 10240, "--ramp-start", 0.2, "--drop-teacher-at", 0.5, "--eval-episodes", 2)
 
@@ -154,7 +147,7 @@ SHORT_SCHEDULE = ("--steps", 10240, "--ramp-start", 0.2, "--drop-teacher-at", 0.
 def test_a_run_records_both_sides_of_the_hand_over_and_keeps_the_checkpoint_before_it(registry, handover):
     mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
     result = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE,
-                             "--handover", handover, "--json"))
+                             "--handover", handover, "--json").stdout)
     record = result["handover"]
     assert record["at_step"] == 6144
     assert record["with_teachers"]["episodes"] == record["without_teachers"]["episodes"] == 2
@@ -164,17 +157,11 @@ def test_a_run_records_both_sides_of_the_hand_over_and_keeps_the_checkpoint_befo
     assert kept == ["checkpoint-before-ramp.safetensors", "checkpoint-before-teacher-free.safetensors"]
 
 
-def mikt_fails(*args, code=1):
-    result = CliRunner().invoke(app, [str(a) for a in args])
-    assert result.exit_code == code, result.output
-    return result.output
-
-
 def test_a_branch_starts_from_the_kept_checkpoint_and_hands_over_its_own_way(registry):
     mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
-    source = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE, "--json"))
+    source = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE, "--json").stdout)
     branch = json.loads(mikt("transfer", "--branch", source["run"], "--at", "before-teacher-free",
-                             "--handover", "fold", "--json"))
+                             "--handover", "fold", "--json").stdout)
     card = json.loads((registry / "runs" / branch["run"] / "run.json").read_text())
     assert card["branched_from"] == {"run": source["run"], "checkpoint": "before-teacher-free", "step": 6144}
     assert card["config"]["options"]["handover"] == "fold"
@@ -191,15 +178,15 @@ def test_a_branch_starts_from_the_kept_checkpoint_and_hands_over_its_own_way(reg
 
 def test_a_branch_refuses_what_it_cannot_do_before_a_run_exists(registry):
     mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
-    source = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE, "--json"))["run"]
+    source = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE, "--json").stdout)["run"]
     runs_before = sorted(p.name for p in (registry / "runs").iterdir())
-    out = mikt_fails("transfer", "--branch", source, "--at", "before-nothing")
+    out = mikt("transfer", "--branch", source, "--at", "before-nothing", code=1).output
     assert "kept no checkpoint 'before-nothing'" in out and "before-teacher-free" in out
-    out = mikt_fails("transfer", "--branch", source, "--at", "before-teacher-free", "--lateral", "projection")
+    out = mikt("transfer", "--branch", source, "--at", "before-teacher-free", "--lateral", "projection", code=1).output
     assert "do not fit" in out
-    assert "go together" in mikt_fails("transfer", "--branch", source, code=2)
-    assert "cannot be combined with --branch" in mikt_fails("transfer", "--branch", source, "--at",
-                                                            "before-teacher-free", "--steps", 4096, code=2)
+    assert "go together" in mikt("transfer", "--branch", source, code=2).output
+    assert "cannot be combined with --branch" in mikt("transfer", "--branch", source, "--at",
+                                                            "before-teacher-free", "--steps", 4096, code=2).output
     assert sorted(p.name for p in (registry / "runs").iterdir()) == runs_before
 
 

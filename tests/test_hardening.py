@@ -10,46 +10,15 @@ import time
 import pytest
 import torch
 from safetensors.torch import load as st_load
-from safetensors.torch import save as st_save
-from typer.testing import CliRunner
 
+from helpers import mikt, rewrite_teacher, runner, runs, spec_dir
 from miktcli.cli.app import app
-from miktcli.registry.cards import TeacherCard
-from miktcli.registry.files import CARD_KEY, tensors_sha256
-
-runner = CliRunner()
-
-
-def mikt(*args, code=0):
-    result = runner.invoke(app, [str(a) for a in args])
-    assert result.exit_code == code, result.output
-    if code == 1:  # a known failure ends with one line (plus an optional hint), never a traceback
-        lines = [ln for ln in result.output.splitlines() if ln.strip()]
-        first = next(i for i, ln in enumerate(lines) if ln.startswith("Error: "))
-        assert all(ln.startswith(("Error: ", "Hint: ")) for ln in lines[first:]), result.output
-        assert "Traceback" not in result.output, result.output
-    return result
-
-
-def runs(registry):
-    return json.loads(mikt("runs", "--json").stdout) if (registry / "runs").exists() else []
 
 
 @pytest.fixture()
 def teacher(registry):
     mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
     return registry / "teachers" / "tiny" / "v1.safetensors"
-
-
-def rewrite_teacher(path, update=None, tensors=None):
-    """Rewrite a teacher file consistently (card sha256 matches): well-formed but wrong."""
-    from safetensors import safe_open
-
-    with safe_open(str(path), "pt") as f:
-        card = TeacherCard.model_validate_json(f.metadata()[CARD_KEY])
-    tensors = st_load(path.read_bytes()) if tensors is None else tensors
-    card = card.model_copy(update={**(update or {}), "tensors_sha256": tensors_sha256(tensors)})
-    path.write_bytes(st_save(tensors, metadata={CARD_KEY: card.model_dump_json()}))
 
 
 # 1. outside text never acts on the terminal --------------------------------------------------------------
@@ -231,17 +200,6 @@ def test_registry_pointing_at_a_file_and_study_out_on_a_file(tmp_path):
 
 
 # 8. spec files ----------------------------------------------------------------------------------------------
-
-def spec_dir(tmp_path, monkeypatch, **files):
-    from miktcli.envs.spec import envspecs_dir
-
-    folder = tmp_path / "specs"
-    folder.mkdir()
-    for stem in ("hopper", "centipede-four"):
-        (folder / f"{stem}.toml").write_text((envspecs_dir() / f"{stem}.toml").read_text())
-    for stem, body in files.items():
-        (folder / f"{stem}.toml").write_text(body)
-    monkeypatch.setenv("MIKT_ENVSPECS", str(folder))
 
 
 def test_one_bad_spec_does_not_hide_the_good_ones(tmp_path, monkeypatch):

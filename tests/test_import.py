@@ -10,29 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from torch import nn
-from typer.testing import CliRunner
 
-from miktcli.cli.app import app
-
-runner = CliRunner()
-FIXTURE = Path(__file__).parent / "fixtures" / "sb3_ppo_hopper_tiny.zip"  # made by SB3 (make_sb3_fixture.py)
-
-
-def mikt(*args, code=0):
-    result = runner.invoke(app, [str(a) for a in args])
-    assert result.exit_code == code, result.output
-    return result
-
-
-def sb3_actions(obs: np.ndarray) -> np.ndarray:
-    """What the fixture's own layers compute (relu MlpPolicy), from its raw tensors."""
-    with zipfile.ZipFile(FIXTURE) as z:
-        sd = torch.load(io.BytesIO(z.read("policy.pth")), weights_only=True)
-    x = torch.as_tensor(obs, dtype=torch.float32)
-    for j in (0, 2):
-        x = torch.relu(x @ sd[f"mlp_extractor.policy_net.{j}.weight"].T + sd[f"mlp_extractor.policy_net.{j}.bias"])
-    return (x @ sd["action_net.weight"].T + sd["action_net.bias"]).numpy()
+from helpers import FIXTURE, cleanrl_agent, fixture_with, mikt, sb3_actions
 
 
 def test_an_sb3_zip_imports_evaluates_and_transfers(registry, tmp_path):
@@ -99,16 +78,6 @@ def test_booby_trapped_pickles_are_never_executed(registry, tmp_path):
     assert not marker.exists()
 
 
-def cleanrl_agent(obs_dim, act_dim):
-    """The Agent of CleanRL's ppo_continuous_action.py, layer for layer."""
-    agent = nn.Module()
-    agent.critic = nn.Sequential(nn.Linear(obs_dim, 64), nn.Tanh(), nn.Linear(64, 64), nn.Tanh(), nn.Linear(64, 1))
-    agent.actor_mean = nn.Sequential(nn.Linear(obs_dim, 64), nn.Tanh(), nn.Linear(64, 64), nn.Tanh(),
-                                     nn.Linear(64, act_dim))
-    agent.actor_logstd = nn.Parameter(torch.full((1, act_dim), -0.5))
-    return agent
-
-
 def test_a_cleanrl_model_imports_and_acts_the_same(registry, tmp_path):
     torch.manual_seed(0)
     agent = cleanrl_agent(97, 10)
@@ -145,15 +114,6 @@ def test_unsupported_shapes_are_refused_clearly(registry, tmp_path, case, messag
                 out.writestr("data", z.read("data"))
                 out.writestr("policy.pth", buffer.getvalue())
     assert message in mikt("teacher", "import", path, "--env", "hopper", code=1).output
-
-
-def fixture_with(tmp_path, name, data=None, weights=None, compress=zipfile.ZIP_STORED):
-    """The SB3 fixture with its `data` or weights replaced."""
-    path = tmp_path / name
-    with zipfile.ZipFile(FIXTURE) as z, zipfile.ZipFile(path, "w", compress) as out:
-        out.writestr("data", z.read("data") if data is None else data)
-        out.writestr("policy.pth", z.read("policy.pth") if weights is None else weights)
-    return path
 
 
 @pytest.mark.parametrize("activation", ["LeakyReLU", "ReLU6", "Tanhshrink"])

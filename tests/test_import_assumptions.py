@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 import torch
 
+from helpers import FIXTURE, cleanrl_agent, fixture_with, mikt, sb3_actions
 from miktcli.errors import MiktError
 from miktcli.registry.teachers import load_teacher
-from test_hardening import mikt
-from test_import import FIXTURE, cleanrl_agent, fixture_with, sb3_actions
 
 
 def test_without_obs_stats_observations_reach_the_policy_unclipped(registry):

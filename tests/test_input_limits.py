@@ -14,10 +14,9 @@ from pathlib import Path
 import pytest
 import torch
 
+from helpers import FIXTURE, cleanrl_agent, fixture_with, mikt
 from miktcli import limits
 from miktcli.errors import MiktError
-from test_hardening import mikt
-from test_import import FIXTURE, cleanrl_agent, fixture_with
 
 
 def no_runs(registry: Path) -> bool:

@@ -6,10 +6,10 @@ import json
 import pytest
 
 import toy_method
+from helpers import mikt, runner
 from miktcli.cli.app import app
 from miktcli.errors import MethodOptionError, TeacherCountError, TeacherMismatchError
 from miktcli.methods import METHODS
-from test_hardening import mikt, runner
 
 TINY = ("--steps", 2048, "--eval-episodes", 1)
 

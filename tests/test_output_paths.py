@@ -5,9 +5,9 @@ from pathlib import Path
 
 import pytest
 
+from helpers import mikt
 from miktcli.errors import MiktError
 from miktcli.outfiles import prepare_output
-from test_hardening import mikt
 
 UNWRITABLE = Path("/proc/mikt-out")  # a folder no one can create files in, whatever os.access says
 

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from helpers import mikt
 from miktcli.registry import packaged
-from test_cli import mikt
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -60,8 +60,8 @@ def test_glfw_without_a_display_is_one_line_without_stray_warnings(tmp_path, env
 
 def test_eval_frame_capture_failures_are_one_line(monkeypatch, registry, tmp_path):
     # a backend that loads but fails on the first frame: eval's capture goes through the same error as render
+    from helpers import mikt
     from miktcli.envs.centipede import CentipedeEnv
-    from test_hardening import mikt
 
     mikt("transfer", "--to", "centipede-four", "--method", "vpg", "--steps", 2048, "--eval-episodes", 1)
 

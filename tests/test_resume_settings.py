@@ -3,8 +3,8 @@ recorded in the card, and a resumed run evaluates with it rather than with the f
 
 import json
 
+from helpers import mikt
 from miktcli.registry.runs import open_run
-from test_hardening import mikt
 
 
 def test_eval_episodes_are_recorded_and_kept_on_resume(registry, ctrl_c_at_second_update):

@@ -8,8 +8,8 @@ from pathlib import Path
 
 from typer.testing import CliRunner
 
+from helpers import spec_dir
 from miktcli.cli.app import app
-from test_hardening import spec_dir
 
 
 def test_a_folder_named_toml_does_not_break_mikt_envs(tmp_path, monkeypatch):

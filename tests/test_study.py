@@ -4,6 +4,7 @@ from pathlib import Path
 
 from typer.testing import CliRunner
 
+from helpers import fake_run
 from miktcli.cli.app import app
 from miktcli.registry.cards import code_version
 
@@ -34,28 +35,6 @@ def test_bad_grid_file(registry, tmp_path):
     bad.write_text('name = "x"\nsteps = 10\nseeds = []\n')
     r = runner.invoke(app, ["study", str(bad)])
     assert r.exit_code == 1 and "field 'seeds'" in r.output
-
-
-def fake_run(registry, env, method, seed, curve, eval_return, mixing=None, teachers=(), per_row=None):
-    """A completed run with a given return curve (one point per 2048-step iteration); `per_row`, where given,
-    holds more metrics for each iteration (one dict each)."""
-    from miktcli.ppo import PPOConfig
-    from miktcli.registry.cards import RunConfig, TeacherRef
-    from miktcli.registry.runs import create_run
-
-    config = RunConfig(ppo=PPOConfig(), pi_hidden=[64, 64], vf_hidden=[64, 64])
-    refs = [TeacherRef(name=name, version=1, sha256="", obs_dim=1, env="x") for name in teachers]
-    run = create_run(registry, kind="transfer", env=env, method=method, seed=seed, total_steps=2048 * len(curve),
-                     config=config, command="test", teachers=refs, code_version="test", packages={})
-    for i, ret in enumerate(curve, start=1):
-        row = {"iteration": i, "steps": 2048 * i, "return_mean": ret, **(mixing or {})}
-        row.update(per_row[i - 1] if per_row is not None else {})
-        run.append_metrics(row)
-    result = {"eval_without_teacher": {"return_mean": eval_return}}
-    if mixing:
-        result["final_mixing_learned"] = mixing
-    run.save_card(status="completed", steps_done=2048 * len(curve), result=result)
-    return run.id
 
 
 def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):

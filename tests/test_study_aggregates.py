@@ -8,8 +8,8 @@ import json
 import pytest
 from typer.testing import CliRunner
 
+from helpers import fake_run
 from miktcli.cli.app import app
-from test_study import fake_run
 
 runner = CliRunner()
 RANDOM = {"hopper": 0.0, "ant": 5.0}

@@ -4,9 +4,9 @@
 import json
 import math
 
+from helpers import mikt
 from miktcli.registry.runs import open_run
 from miktcli.registry.tensorboard import read_scalars
-from test_hardening import mikt
 
 ODD = {"return_mean": -8.7e300, "loss_value": math.inf, "approx_kl": math.nan, "entropy": 10**400, "clip_frac": 0.25}
 

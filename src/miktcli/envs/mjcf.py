@@ -31,6 +31,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from miktcli import limits
 from miktcli.errors import MiktError
 
 if TYPE_CHECKING:
@@ -51,10 +52,7 @@ def load_model(path: Path) -> mujoco.MjModel:
     path = Path(path)
     if not path.is_file():
         raise MiktError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
-    try:
-        path.open("rb").close()
-    except OSError as err:
-        raise MiktError(f"{path}: cannot be read: {err.strerror or err}") from err
+    limits.require_regular_file(path, str(path))
     try:
         return mujoco.MjModel.from_xml_path(str(path))
     except ValueError as err:  # MuJoCo's parser and compiler errors, several lines long

@@ -40,7 +40,8 @@ class _SpecBase(BaseModel):
     name: str = Field(description="the name users type; equals the file's stem")
     obs_dim: int = Field(gt=0, description="expected observation dimension, checked when the env is built")
     act_dim: int = Field(gt=0, description="expected action dimension, checked when the env is built")
-    max_episode_steps: int = Field(1000, gt=0, description="time limit; reaching it truncates, never terminates")
+    max_episode_steps: int = Field(1000, gt=0, le=limits.MAX_EPISODE_STEPS,
+                                   description="time limit; reaching it truncates, never terminates")
     notes: str = ""
 
 
@@ -214,6 +215,8 @@ def load_spec_file(path: Path) -> AnySpec:
         raise MiktError(f"{path}: cannot be read: {err.strerror or err}") from err
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise MiktError(f"{path}: not valid TOML: {err}") from err
+    except RecursionError:  # tomllib recurses once per level of nesting
+        raise MiktError(f"{path}: not valid TOML: nested too deeply") from None
     try:
         spec = parse_spec(data)
     except ValidationError as err:

@@ -107,6 +107,7 @@ def save_with_card(path: Path, tensors: dict[str, torch.Tensor], card: BaseModel
 
 
 def read_metadata(path: Path) -> dict[str, str]:
+    limits.require_regular_file(path, str(path))  # safetensors would block on a FIFO, deaf to Ctrl-C
     try:
         with safe_open(str(path), framework="pt") as f:
             return f.metadata() or {}

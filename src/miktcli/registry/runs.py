@@ -15,6 +15,7 @@ from typing import Any
 import torch
 from pydantic import BaseModel, ConfigDict, ValidationError
 
+from miktcli import limits
 from miktcli.errors import MiktError, describe_validation_error
 from miktcli.registry.cards import RUN_SCHEMA_VERSION, RunCard, now
 from miktcli.registry.files import (
@@ -153,7 +154,9 @@ class Run:
         if not self.metrics_path.exists():
             return []
         rows = []
-        for line in self.metrics_path.read_bytes().splitlines():
+        lines = limits.read_lines_bounded(self.metrics_path, str(self.metrics_path), limits.MAX_METRICS_BYTES,
+                                          limits.MAX_METRICS_LINE_BYTES)
+        for line in lines:
             try:
                 row = json.loads(line.decode("utf-8"))
             except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):  # deep nesting: damaged too

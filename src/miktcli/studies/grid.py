@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from miktcli import compat
 from miktcli.errors import MiktError, describe_validation_error
+from miktcli.limits import open_regular
 from miktcli.methods import get_method, transfer_methods
 
 # A grid's size limits. Every cell is a run folder and a line of state.json and results.md; beyond these a
@@ -113,9 +114,11 @@ class Grid(BaseModel):
 
 
 def load_grid(path: Path) -> Grid:
+    if not Path(path).exists():
+        raise MiktError(f"grid file {path} not found")
     try:
-        with open(path, "rb") as f:
-            raw = f.read(MAX_GRID_FILE_BYTES + 1)  # never more than the limit, whatever the file (/dev/zero)
+        with open_regular(path, str(path)) as f:  # a FIFO or a device is refused, never waited on
+            raw = f.read(MAX_GRID_FILE_BYTES + 1)  # never more than the limit, whatever the file
         if len(raw) > MAX_GRID_FILE_BYTES:
             raise MiktError(f"{path}: a grid file holds at most {MAX_GRID_FILE_BYTES:,} bytes; this one is larger")
         data = tomllib.loads(raw.decode("utf-8"))
@@ -124,6 +127,8 @@ def load_grid(path: Path) -> Grid:
         raise MiktError(f"grid file {path} not found") from None
     except tomllib.TOMLDecodeError as err:
         raise MiktError(f"{path}: not valid TOML: {err}") from err
+    except RecursionError:  # tomllib (and pydantic) recurse once per level of nesting
+        raise MiktError(f"{path}: not valid TOML: nested too deeply") from None
     except UnicodeDecodeError:
         raise MiktError(f"{path}: not valid TOML: not a UTF-8 text file") from None
     except ValidationError as err:

@@ -59,7 +59,8 @@ def new_run(registry: Path, *, kind: str, env: str, method: str, seed: int, tota
     if not 0 <= seed <= MAX_SEED:
         raise MiktError(f"--seed {seed} is out of range: 0 to {MAX_SEED}")
     get_method(method).parse_options(config.options)
-    load_spec(env)  # fail on an unknown env before a run folder exists
+    spec = load_spec(env)  # fail on an unknown env before a run folder exists
+    limits.check_model_size(spec.obs_dim, spec.act_dim, config.pi_hidden, config.vf_hidden)
     check_registry_writable(registry, "runs", *(["teachers"] if kind == "teacher" else []))
     return create_run(
         registry, kind=kind, env=env, method=method, seed=seed, total_steps=total_steps, config=config,
