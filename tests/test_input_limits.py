@@ -5,6 +5,7 @@ exists. The limits live in miktcli/limits.py."""
 import io
 import json
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -115,9 +116,9 @@ def test_an_oversized_teacher_file_is_refused_before_it_is_read(registry, monkey
     assert "more than the" in r.output and teacher_file.name in r.output
 
 
-def test_obs_stats_from_dev_zero_are_refused_after_reading_at_most_the_limit(registry):
+def test_obs_stats_from_dev_zero_are_refused_without_reading_them(registry):
     r = mikt("teacher", "import", FIXTURE, "--env", "hopper", "--obs-stats", "/dev/zero", code=1)
-    assert f"/dev/zero: more than the {limits.MAX_JSON_BYTES:,} bytes" in r.output
+    assert "/dev/zero: a device, not a regular file" in r.output
 
 
 def test_an_oversized_stats_file_is_refused_from_its_size(registry, tmp_path, monkeypatch):
@@ -200,3 +201,30 @@ def test_every_limit_is_named_with_its_reason_in_one_module():
     for name in names:
         line = next(ln for ln in source.splitlines() if ln.startswith(f"{name} ="))
         assert "#" in line and len(line.split("#", 1)[1].strip()) > 20, line
+
+
+def test_layer_sizes_past_the_limit_are_refused_before_a_run_exists(registry):
+    out = mikt("teacher", "train", "hopper", "--steps", 2048, "--hidden", "100000,100000", code=1).output
+    assert f"at most {limits.MAX_LAYERS} layers of at most {limits.MAX_LAYER_WIDTH:,} units" in out
+    out = mikt("teacher", "train", "hopper", "--steps", 2048, "--hidden", "4096,4096,4096,4096", code=1).output
+    assert "parameters on a 11-dim observation" in out
+    assert no_runs(registry)
+
+
+def test_a_spec_time_limit_past_the_bound_and_a_deeply_nested_spec_are_one_line(tmp_path, monkeypatch):
+    from helpers import spec_dir
+
+    hopper = (Path(__file__).resolve().parents[1] / "envspecs" / "hopper.toml").read_text()
+    long_limit = re.sub(r"max_episode_steps = \d+", f"max_episode_steps = {10 ** 12}",
+                        hopper.replace('name = "hopper"', 'name = "long"'))
+    spec_dir(tmp_path, monkeypatch, long=long_limit, nested='name = "nested"\nx = ' + "[" * 5000 + "]" * 5000 + "\n")
+    out = mikt("envs", code=1).output
+    assert "nested.toml: not valid TOML: nested too deeply" in out
+    assert "long.toml: field 'max_episode_steps'" in out and "internal error" not in out
+
+
+def test_a_deeply_nested_grid_is_one_line(registry, tmp_path):
+    grid = tmp_path / "deep.toml"
+    grid.write_text('name = "deep"\nsteps = 2048\nseeds = ' + "[" * 5000 + "]" * 5000 + "\n")
+    out = mikt("study", grid, "--out", tmp_path / "out", code=1).output
+    assert "not valid TOML: nested too deeply" in out

@@ -31,7 +31,7 @@ MAX_METRICS_LINE_BYTES = 1 * MiB  # one iteration's row: ~1.3 KB, ~10 KB with ma
 
 # Model sizes (checked before a run folder exists).
 MAX_LAYER_WIDTH = 4096  # --hidden: the paper's layers are 64 wide; 4096x4096 is 64 MB of float32 per layer
-MAX_LAYERS = 16
+MAX_LAYERS = 16  # hidden layers per network: the paper uses 2, deep MLP policies rarely pass 8
 MAX_PARAMETERS = 50_000_000  # the student's policy and value together: 200 MB of float32, x4 with Adam's state
 MAX_EPISODE_STEPS = 1_000_000  # a spec's time limit: 1,000x the paper's 1,000; one evaluation episode ~20 min
 
