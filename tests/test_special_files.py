@@ -73,3 +73,43 @@ def test_a_metrics_line_or_file_past_its_limit_is_refused(finished_run, monkeypa
     monkeypatch.setattr(limits, "MAX_METRICS_BYTES", 100)
     with pytest.raises(MiktError, match="more than the 100 bytes"):
         run.read_metrics()
+
+
+def robot_with_mesh_and_include(folder):
+    (folder / "meshes").mkdir(parents=True)
+    (folder / "meshes" / "foot.obj").write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\n"
+                                                "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    (folder / "motors.xml").write_text('<mujoco><actuator><motor joint="hip" gear="10"/></actuator></mujoco>')
+    (folder / "bot.xml").write_text(
+        '<mujoco><compiler meshdir="meshes"/><asset><mesh name="foot" file="foot.obj"/></asset><worldbody>'
+        '<geom type="plane" size="5 5 .1"/><body name="base" pos="0 0 0.5"><freejoint/>'
+        '<geom type="sphere" size="0.1"/><body name="leg"><joint name="hip" type="hinge" axis="0 1 0"/>'
+        '<geom type="mesh" mesh="foot"/></body></body></worldbody><include file="motors.xml"/></mujoco>')
+    return folder / "bot.xml"
+
+
+@pytest.mark.parametrize("victim", ["motors.xml", "meshes/foot.obj"])
+def test_a_fifo_as_an_include_or_a_mesh_is_refused_before_mujoco_opens_it(tmp_path, monkeypatch, victim):
+    xml = robot_with_mesh_and_include(tmp_path / "robot")
+    (tmp_path / "robot" / victim).unlink()
+    os.mkfifo(tmp_path / "robot" / victim)
+    (tmp_path / "specs").mkdir()
+    monkeypatch.setenv("MIKT_ENVSPECS", str(tmp_path / "specs"))
+    result = run_cli("envs", "add", xml, "--name", "bot", registry=tmp_path / "registry")
+    assert result.returncode == 1 and "a FIFO, not a regular file" in result.stderr, result.stderr
+    assert not (tmp_path / "specs" / "bot.toml").exists()
+
+
+def test_model_files_past_their_bounds_are_refused_before_mujoco_reads_them(tmp_path, monkeypatch):
+    from miktcli import limits
+
+    xml = robot_with_mesh_and_include(tmp_path / "robot")
+    (tmp_path / "specs").mkdir()
+    monkeypatch.setenv("MIKT_ENVSPECS", str(tmp_path / "specs"))
+    monkeypatch.setattr(limits, "MAX_MODEL_FILE_BYTES", 100)  # foot.obj and bot.xml are larger
+    assert "bytes, more than the 100 this kind of file may take" in mikt("envs", "add", xml, "--name", "b",
+                                                                          code=1).output
+    monkeypatch.setattr(limits, "MAX_MODEL_FILE_BYTES", 1 << 20)
+    monkeypatch.setattr(limits, "MAX_MODEL_BYTES", 500)  # each file fits, all of them together do not
+    assert "the model's files pass 500 bytes together" in mikt("envs", "add", xml, "--name", "b", code=1).output
+    assert not list((tmp_path / "specs").iterdir())

@@ -29,6 +29,9 @@ MAX_SMALL_MEMBER_BYTES = 64 * 1024  # a zip's version stamp and the like: a few 
 MAX_METRICS_BYTES = 1024 * MiB  # metrics.jsonl: ~1.3 KB a row, 1.2 MB for 2M steps, ~650 MB at MAX_STEPS
 MAX_METRICS_LINE_BYTES = 1 * MiB  # one iteration's row: ~1.3 KB, ~10 KB with many teachers and layers
 
+MAX_MODEL_FILE_BYTES = 256 * MiB  # one MJCF file or mesh, texture, height field, skin: Menagerie's largest ~30 MB
+MAX_MODEL_BYTES = 1024 * MiB  # all of a model's files together; MuJoCo holds them in memory several times over
+
 # Model sizes (checked before a run folder exists).
 MAX_LAYER_WIDTH = 4096  # --hidden: the paper's layers are 64 wide; 4096x4096 is 64 MB of float32 per layer
 MAX_LAYERS = 16  # hidden layers per network: the paper uses 2, deep MLP policies rarely pass 8
@@ -99,8 +102,10 @@ def open_regular(path, what: str):
     mode = os.fstat(fd).st_mode
     if not stat.S_ISREG(mode):
         os.close(fd)
+        if stat.S_ISDIR(mode):
+            raise MiktError(f"{what}: a folder, not a file")
         kind = ("a FIFO" if stat.S_ISFIFO(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
-                else "a folder" if stat.S_ISDIR(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a file")
+                else "a socket" if stat.S_ISSOCK(mode) else "a special file")
         raise MiktError(f"{what}: {kind}, not a regular file; mikt reads only regular files")
     os.set_blocking(fd, True)
     return os.fdopen(fd, "rb")

@@ -23,6 +23,7 @@ walker2d_v5.xml matches Hopper-v5 / Walker2d-v5 step for step (tests/test_mjcf.p
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -47,12 +48,72 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
+def model_files(xml: Path) -> list[Path]:
+    """Every file the model loads besides itself, as absolute paths (MuJoCo's rules: includes relative to the
+    main file's folder; meshes, height fields and skins under meshdir; textures under texturedir). Each one,
+    the XML too, must be a regular file within MAX_MODEL_FILE_BYTES, and all of them together within
+    MAX_MODEL_BYTES, before MuJoCo (which reads them whole, and would wait on a FIFO) opens any."""
+    base = xml.parent
+    found: list[Path] = []
+    total = len(_bounded_model_file(xml, 0))
+    pending = [xml]
+    while pending:  # includes may include
+        current = pending.pop()
+        data = _bounded_model_file(current, total) if current != xml else _bounded_model_file(xml, 0)
+        try:
+            tree = ET.fromstring(data)
+        except ET.ParseError as err:
+            raise MiktError(f"{xml}: not a valid MJCF model: {err}") from err
+        for node in tree.iter("include"):
+            if node.get("file"):
+                path = base / node.get("file")
+                if path not in found:
+                    found.append(path)
+                    total += len(_bounded_model_file(path, total))
+                    pending.append(path)
+    try:
+        spec = mujoco.MjSpec.from_file(str(xml))
+    except ValueError as err:
+        raise MiktError(f"{xml}: not a valid MJCF model: {_one_line(err)}") from err
+
+    def under(folder: str, name: str) -> Path:
+        path = Path(name)
+        return path if path.is_absolute() else base / folder / path
+
+    assets = [under(spec.meshdir, a.file) for a in [*spec.meshes, *spec.hfields, *spec.skins] if a.file]
+    for texture in spec.textures:
+        assets += [under(spec.texturedir, n) for n in [texture.file, *getattr(texture, "cubefiles", [])] if n]
+    for path in dict.fromkeys(assets):
+        if path not in found:
+            total += _model_file_size(path, total)
+            found.append(path)
+    return found
+
+
+def _model_file_size(path: Path, total_before: int) -> int:
+    """A model file's size, refused unless it is a regular file within both bounds."""
+    import os
+
+    with limits.open_regular(path, str(path)) as f:
+        size = os.fstat(f.fileno()).st_size
+    limits.check_declared_size(str(path), size, limits.MAX_MODEL_FILE_BYTES)
+    if total_before + size > limits.MAX_MODEL_BYTES:
+        raise MiktError(f"{path}: the model's files pass {limits.MAX_MODEL_BYTES:,} bytes together",
+                        hint=limits.LIMITS_HINT)
+    return size
+
+
+def _bounded_model_file(path: Path, total_before: int) -> bytes:
+    _model_file_size(path, total_before)
+    return limits.read_file_bounded(path, str(path), limits.MAX_MODEL_FILE_BYTES)
+
+
 def load_model(path: Path) -> mujoco.MjModel:
     """Parse and compile an MJCF file; any failure is one MiktError naming the file and the problem."""
     path = Path(path)
-    if not path.is_file():
-        raise MiktError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
-    limits.require_regular_file(path, str(path))
+    if not path.exists():
+        raise MiktError(f"{path}: no such file")
+    model_files(path)  # regular files within the bounds, or one line before MuJoCo reads any
     try:
         return mujoco.MjModel.from_xml_path(str(path))
     except ValueError as err:  # MuJoCo's parser and compiler errors, several lines long

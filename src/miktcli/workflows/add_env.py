@@ -14,14 +14,13 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
 
 from miktcli.envs.factory import env_dims, model_facts
-from miktcli.envs.mjcf import MjcfEnv, Root, body_name, find_root, load_model
+from miktcli.envs.mjcf import MjcfEnv, Root, body_name, find_root, load_model, model_files
 from miktcli.envs.spec import SPEC_NAME_RE, MjcfSpec, load_spec_file, spec_names, user_specs_dir
 from miktcli.errors import MiktError
 from miktcli.registry.files import write_text_atomic
@@ -40,41 +39,6 @@ class AddedEnv:
     files: list[str]  # files copied beside the XML (relative paths)
     root: str  # the chosen torso and its root joint, in words
     facts: dict
-
-
-def _referenced_files(xml: Path) -> list[Path]:
-    """Every file the model loads besides itself, as absolute paths (MuJoCo's rules: includes relative to
-    the main file's folder; meshes, height fields and skins under meshdir; textures under texturedir)."""
-    base = xml.parent
-    found: list[Path] = []
-    pending = [xml]
-    while pending:  # includes may include
-        try:
-            tree = ET.parse(pending.pop())
-        except (ET.ParseError, OSError) as err:
-            raise MiktError(f"{xml}: not a valid MJCF model: {err}") from err
-        for node in tree.iter("include"):
-            if node.get("file"):
-                path = base / node.get("file")
-                found.append(path)
-                pending.append(path)
-    try:
-        spec = mujoco.MjSpec.from_file(str(xml))
-    except ValueError as err:
-        raise MiktError(f"{xml}: not a valid MJCF model: {' '.join(str(err).split())}") from err
-
-    def under(folder: str, name: str) -> Path:
-        path = Path(name)
-        return path if path.is_absolute() else base / folder / path
-
-    for asset in [*spec.meshes, *spec.hfields, *spec.skins]:
-        if asset.file:
-            found.append(under(spec.meshdir, asset.file))
-    for texture in spec.textures:
-        for name in [texture.file, *getattr(texture, "cubefiles", [])]:
-            if name:
-                found.append(under(spec.texturedir, name))
-    return list(dict.fromkeys(found))
 
 
 def _inside(path: Path, folder: Path) -> bool:
@@ -134,7 +98,7 @@ def add_mjcf(xml: Path, name: str, torso: str | None = None, folder: Path | None
         root = find_root(model, torso)
     except MiktError as err:
         raise MiktError(f"{xml}: {err}") from err
-    referenced = _referenced_files(xml)
+    referenced = model_files(xml)
     copied = all(_inside(p, xml.parent) for p in referenced)
 
     staging = folder / f".{name}.{os.getpid()}.tmp"
