@@ -17,7 +17,8 @@ from miktcli.ppo import PPOConfig
 # A card is written with the newest version this code knows; a reader refuses a newer one with a message
 # instead of a validation error about a field it has never heard of. Every version reads every older one.
 # Teacher: 2 adds `code_history`, 3 `obs_clip`. Run: 2 adds the status `created` and `code_history`, 3
-# `config.eval_episodes`, 4 `branched_from` and `config.ppo.flush_denormal`.
+# `config.eval_episodes`, 4 `branched_from`,
+# `env_spec`, `env_fingerprint` and `config.ppo.flush_denormal`.
 TEACHER_SCHEMA_VERSION = 3
 RUN_SCHEMA_VERSION = 4
 
@@ -223,3 +224,6 @@ class RunCard(BaseModel):
     result: dict[str, Any] = Field(default_factory=dict)
     error: str | None = None
     branched_from: BranchPoint | None = None
+    # the environment as the run started on it (envs/fingerprint.py); None on cards before schema 4
+    env_spec: dict[str, Any] | None = None
+    env_fingerprint: str | None = None

@@ -16,6 +16,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from miktcli import compat
+from miktcli.envs.fingerprint import describe_change, spec_fingerprint
 from miktcli.envs.spec import load_spec
 from miktcli.errors import MiktError
 from miktcli.registry.cards import TeacherRef
@@ -240,6 +241,7 @@ class Study:
                             hint="is this the study's registry? Restore its runs (benchmarks/snapshot_study.py "
                                  "--restore), or pass --retrain-missing to train those cells afresh")
         self._pin_teachers()
+        self._check_envs_unchanged()
         cells: list[tuple[str, Run]] = []
         # state.json is rewritten whole, so writing it per new cell made preparing N cells quadratic in N; it is
         # written every STATE_WRITE_EVERY_S and at the end, also on an error or Ctrl-C. Only a kill in between
@@ -256,6 +258,21 @@ class Study:
             if unwritten:
                 self._write_state()
         return cells
+
+    def _check_envs_unchanged(self) -> None:
+        """Every run the study has must have trained on its environment as it is now: one row of the report
+        would otherwise hold cells on two bodies or rewards."""
+        now: dict[str, str] = {}
+        for key, run_id in self.cells.items():
+            run = self.run_of(key)
+            if run is None or run.card.env_fingerprint is None:
+                continue
+            if run.card.env not in now:
+                now[run.card.env] = spec_fingerprint(load_spec(run.card.env))
+            if now[run.card.env] != run.card.env_fingerprint:
+                raise MiktError(f"study '{self.grid.name}', cell {key} ({run_id}): " + describe_change(
+                    run.card.env, run.card.env_fingerprint, now[run.card.env], "that cell started"),
+                    hint="restore the spec, or give the edited body a new name and a grid of its own")
 
     def _prepare_cell(self, pair: PairSpec, method: MethodSpec, seed: int, command: str,
                       cells: list[tuple[str, Run]]) -> bool:

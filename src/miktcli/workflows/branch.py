@@ -43,7 +43,8 @@ def branch_run(registry: Path, source_id: str, at: str, options: dict[str, Any],
 
     run = create_run(registry, kind="transfer", env=source.card.env, method=source.card.method,
                      seed=source.card.seed, total_steps=source.card.total_steps, config=config, command=command,
-                     teachers=source.card.teachers, code_version=code_version(), packages=package_versions())
+                     teachers=source.card.teachers, code_version=code_version(), packages=package_versions(),
+                     env_spec=source.card.env_spec, env_fingerprint=source.card.env_fingerprint)
     # A hand-over recorded after the branch point belongs to the source's own continuation, not to this run.
     result = {k: v for k, v in source.card.result.items()
               if k == "handover" and isinstance(v, dict) and v.get("at_step", ckpt.steps) < ckpt.steps}

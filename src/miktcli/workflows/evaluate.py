@@ -6,13 +6,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import NamedTuple
 
+from miktcli.envs import load_spec
+from miktcli.envs.fingerprint import spec_record
 from miktcli.errors import MiktError
 from miktcli.evaluation import evaluate_policy, evaluation_summary  # noqa: F401 - the workflows' names
 from miktcli.methods import get_method
 from miktcli.policies import ActorCritic
 from miktcli.registry.runs import RUN_TARGET_RE, open_run
 from miktcli.registry.teachers import load_policy_file, load_teacher
-from miktcli.workflows.session import agent_from_checkpoint
+from miktcli.workflows.session import agent_from_checkpoint, check_env_unchanged
 
 
 class LoadedPolicy(NamedTuple):
@@ -26,6 +28,7 @@ def load_run_policy(registry: Path, run_id: str, with_teacher: bool) -> LoadedPo
     """A run's policy: the saved teacher-free student, or (with_teacher) the agent with its teachers, from
     its checkpoint."""
     run = open_run(registry, run_id)
+    check_env_unchanged(run, load_spec(run.card.env), "cannot evaluate")
     method = get_method(run.card.method)
     if with_teacher:
         if method.with_teachers is None:
@@ -53,4 +56,16 @@ def load_policy(registry: Path, target: str, with_teacher: bool = False) -> Load
     if with_teacher:
         raise MiktError("--with-teacher applies to runs (runN), not to teachers")
     teacher = load_teacher(registry, target)
+    check_teacher_env_unchanged(teacher.card)
     return LoadedPolicy(teacher.policy, teacher.card.env, teacher.card.ref, teacher.card.clip_actions_for_env)
+
+
+def check_teacher_env_unchanged(card) -> None:
+    """A teacher's card holds the spec it was trained on: refuse to evaluate it on an edited one. Only the
+    fields both know are compared (a field added to mikt's specs since keeps its default)."""
+    now = spec_record(load_spec(card.env))
+    changed = sorted(k for k in card.env_spec.keys() & now.keys() if card.env_spec[k] != now[k])
+    if changed:
+        raise MiktError(f"cannot evaluate {card.ref}: environment '{card.env}' changed since it was trained "
+                        f"({', '.join(f'{k}: {card.env_spec[k]!r} then, {now[k]!r} now' for k in changed[:3])})",
+                        hint="restore the spec, or add the edited body under a new name and train on it")

@@ -15,6 +15,7 @@ import torch
 
 from miktcli import limits
 from miktcli.envs import load_spec, make_env
+from miktcli.envs.fingerprint import describe_change, spec_fingerprint, spec_record
 from miktcli.errors import MiktError
 from miktcli.evaluation import evaluation_summary
 from miktcli.limits import check_count
@@ -61,11 +62,26 @@ def new_run(registry: Path, *, kind: str, env: str, method: str, seed: int, tota
     get_method(method).parse_options(config.options)
     spec = load_spec(env)  # fail on an unknown env before a run folder exists
     limits.check_model_size(spec.obs_dim, spec.act_dim, config.pi_hidden, config.vf_hidden)
+    fingerprint = spec_fingerprint(spec)
     check_registry_writable(registry, "runs", *(["teachers"] if kind == "teacher" else []))
     return create_run(
         registry, kind=kind, env=env, method=method, seed=seed, total_steps=total_steps, config=config,
         command=command, teachers=teachers or [], code_version=code_version(), packages=package_versions(),
+        env_spec=spec_record(spec), env_fingerprint=fingerprint,
     )
+
+
+def check_env_unchanged(run: Run, spec, doing: str) -> None:
+    """Refuse to go on with a run whose environment was edited since it started (a run recorded before mikt
+    kept fingerprints is taken as it is)."""
+    recorded = run.card.env_fingerprint
+    if recorded is None:
+        return
+    now = spec_fingerprint(spec)
+    if now != recorded:
+        raise MiktError(f"{doing} {run.id}: " + describe_change(run.card.env, recorded, now, "it started"),
+                        hint=f"restore the spec (the run's card holds it: mikt inspect {run.id} --json), or "
+                             "add the edited body under a new name for new runs")
 
 
 @dataclass(frozen=True)
@@ -104,6 +120,7 @@ class Job:
         try:
             torch.manual_seed(run.card.seed)
             self.spec = load_spec(run.card.env)
+            check_env_unchanged(run, self.spec, "cannot train")
             self.method = get_method(run.card.method)
             self.agent = build_agent(run, registry)
             self.config = run.card.config.ppo
