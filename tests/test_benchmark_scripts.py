@@ -388,6 +388,7 @@ def test_a_malformed_file_of_cat_figures_is_a_one_line_error(tmp_path):
         load_script("multi_teacher_report").load_cat(bad)
 
 
+@pytest.mark.slow
 def test_paired_numerics_pairs_seeds_and_reads_each_run_at_the_mark(tmp_path):
     out = tmp_path / "paired.json"
     subprocess.run([sys.executable, str(BENCHMARKS / "paired_numerics.py"), "--seeds", "0-1", "--mark", "2048",

@@ -24,6 +24,8 @@ eval_episodes = 1
 
 [[pairs]]
 from = ["tiny"]
+
+pytestmark = pytest.mark.slow  # process-level: `pytest -m "not slow"` skips this module
 to = "centipede-four"
 
 [[methods]]

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # process-level: `pytest -m "not slow"` skips this module
+
 ROOT = Path(__file__).resolve().parents[1]
 VERSION_RE = re.compile(r"^registry/teachers/([^/]+)/v(\d+)\.safetensors$")
 
