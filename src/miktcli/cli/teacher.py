@@ -31,7 +31,8 @@ from miktcli.errors import MiktError
 app = typer.Typer(
     help="Train teachers and browse the registry.\n\nExamples:\n\n  mikt teacher train centipede-four"
     "\n\n  mikt teacher train hopper --steps 1000000 --seed 1\n\n  mikt teacher list\n\n"
-    "  mikt teacher show centipede-four@v1\n\n  mikt teacher import ppo_hopper.zip --env hopper --obs-stats stats.json",
+    "  mikt teacher show centipede-four@v1\n\n  mikt teacher add run7 --name six-from-four\n\n"
+    "  mikt teacher import ppo_hopper.zip --env hopper --obs-stats stats.json",
     no_args_is_help=True,
 )
 
@@ -76,6 +77,22 @@ def train(
             hint=f"continue with: mikt teacher train --resume {run.id}",
         ) from None
     err.print(f"final mean return {card.final_return}, best {card.best_return}")
+    print_data(card.ref)
+
+
+@app.command("add")
+def add_command(
+    run: str = typer.Argument(..., help="A completed transfer run (runN, or last).", show_default=False),
+    name: str = typer.Option(..., "--name", help="Teacher name in the registry (a new name, or the next "
+                             "version of one)."),
+    registry: RegistryOption = DEFAULT_REGISTRY,
+) -> None:
+    """Add a transfer run's teacher-free student as a teacher, so it can teach in turn (`--from NAME`)."""
+    from miktcli.workflows.teacher import add_student_as_teacher
+
+    card = add_student_as_teacher(registry, run, name)
+    taught = ", ".join(card.trained_with) or "no teacher"
+    err.print(f"added {card.source_run}'s student ({card.method} from {taught}, on {card.env}) as {card.ref}")
     print_data(card.ref)
 
 

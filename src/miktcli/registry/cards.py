@@ -16,10 +16,10 @@ from miktcli.ppo import PPOConfig
 
 # A card is written with the newest version this code knows; a reader refuses a newer one with a message
 # instead of a validation error about a field it has never heard of. Every version reads every older one.
-# Teacher: 2 adds `code_history`, 3 `obs_clip`. Run: 2 adds the status `created` and `code_history`, 3
-# `config.eval_episodes`, 4 `branched_from`,
-# `env_spec`, `env_fingerprint` and `config.ppo.flush_denormal`.
-TEACHER_SCHEMA_VERSION = 3
+# Teacher: 2 adds `code_history`, 3 `obs_clip`, 4 `method` and `trained_with`. Run: 2 adds the status
+# `created` and `code_history`, 3 `config.eval_episodes`, 4 `branched_from`, `env_spec`, `env_fingerprint`
+# and `config.ppo.flush_denormal`.
+TEACHER_SCHEMA_VERSION = 4
 RUN_SCHEMA_VERSION = 4
 
 
@@ -132,6 +132,9 @@ class TeacherCard(BaseModel):
     code_history: list[CodeSegment] = Field(default_factory=list)
     source_run: str | None = None
     imported_from: dict[str, Any] | None = None  # a teacher trained elsewhere: format, file and its sha256
+    # a transfer run's student added as a teacher (`mikt teacher add`): the method and teachers it learned with
+    method: str | None = None
+    trained_with: list[str] = Field(default_factory=list)
     created: dt.datetime
     tensors_sha256: str
 

@@ -45,7 +45,9 @@ def check_name(name: str) -> str:
         raise MiktError(f"invalid teacher name {name!r}: use lowercase letters, digits, '.', '_' and '-', "
                         "starting with a letter or digit")
     if RESERVED_NAME_RE.fullmatch(name):
-        raise MiktError(f"teacher name '{name}' is reserved: eval and inspect read it as a run or an alias")
+        raise MiktError(f"teacher name '{name}' is reserved: eval and inspect read it as a run or an alias",
+                        hint="to teach with a run's student, add it as a teacher first: mikt teacher add RUN "
+                             "--name NAME" if name.startswith("run") else None)
     return name
 
 

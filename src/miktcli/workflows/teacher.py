@@ -61,6 +61,30 @@ def publish_teacher_from_job(job: Job) -> TeacherCard:
     return published
 
 
+def add_student_as_teacher(registry: Path, run_id: str, name: str) -> TeacherCard:
+    """Publish a completed transfer run's teacher-free student as the next version of teacher `name`, so that
+    it can teach in turn (chains such as four → six → eight). Its card keeps the run's provenance: the run,
+    the teachers it learned from, the code that trained it, the spec of its env."""
+    from miktcli.registry.runs import open_run
+    from miktcli.registry.teachers import load_policy_file
+
+    run = open_run(registry, run_id)
+    if run.card.kind != "transfer":
+        raise MiktError(f"run '{run.id}' is a teacher run: its teacher is published already "
+                        f"({run.card.result.get('teacher', 'when it completes')})")
+    if run.card.status != "completed" or not run.student_path.exists():
+        raise MiktError(f"run '{run.id}' is {run.card.status}: only a completed transfer has a student to add",
+                        hint=f"finish it first: mikt transfer --resume {run.id}")
+    student, policy = load_policy_file(run.student_path)
+    if (student.source_run, student.env) != (run.id, run.card.env):
+        raise MiktError(f"{run.student_path}: the file is {student.ref} on {student.env}, not {run.id}'s student "
+                        f"on {run.card.env} (copied or tampered)")
+    card = student.model_copy(update={"name": check_name(name), "created": now(),
+                                      "trained_with": [t.ref for t in run.card.teachers],
+                                      "method": run.card.method})
+    return publish_teacher(registry, card, policy)
+
+
 def import_teacher(registry: Path, path: Path, *, fmt: str, env: str, name: str | None = None,
                    obs_stats: Path | None = None, activation: str | None = None) -> TeacherCard:
     """Publish a policy trained elsewhere (Stable-Baselines3 zip, CleanRL model) as the next version of a
