@@ -205,3 +205,23 @@ def test_a_study_report_shows_each_run_s_hand_over_and_slowdown():
     assert "| a+b>c | mikt | 0 | run7 | fold | 1,800,384 | 5,168 | 5,000 | 97% | 4,000 | 4,100 | +100 |" in text
     assert "| a+b>c | mikt | 1 | run8 | ramp | 462,848 | 2.7× |" in text
     assert _handover_section(SimpleNamespace(handovers=[])) == []
+
+
+@pytest.mark.parametrize("teachers", [1, 2])
+def test_fade_moves_the_mixed_network_to_the_teacher_free_student_across_the_window(teachers):
+    agent, obs = trained_like_agent("fade", teachers, handover_window=0.1), torch.randn(64, 13)
+    student = agent.student_only()
+    with torch.no_grad():
+        agent.set_progress(0.79)  # before the window: the learned weights
+        assert not agent.fading
+        before = agent.action_mean(obs)
+        agent.set_progress(0.85)  # half-way: u = 0.5
+        w_pi, _ = agent.forward_weights()
+        p = agent.mixing_weights()[0]
+        torch.testing.assert_close(w_pi[:, 0], p[:, 0] + 0.5 * (1 - p[:, 0]))
+        torch.testing.assert_close(w_pi.sum(1), torch.ones(2))
+        assert torch.equal(agent.rollout_actor(obs)(), agent.action_mean(obs))  # the fast path fades too
+        agent.set_progress(0.9 - 1e-9)  # the window's end: (almost) the student alone
+        torch.testing.assert_close(agent.action_mean(obs), student.action_mean(obs), atol=1e-5, rtol=0)
+        torch.testing.assert_close(agent.value(obs), student.value(obs), atol=1e-5, rtol=0)
+    assert not torch.allclose(before, student.action_mean(obs), atol=1e-3)

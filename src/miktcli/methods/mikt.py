@@ -78,7 +78,7 @@ class MiktConfig(BaseModel):
         "c·mean_j max(0, log r(t) − log p^j), so the teacher is pushed out no faster than the ramp. Why: Adam "
         "normalises each parameter's step, so once L_coupling's gradient outweighs PPO's on a mixing logit, the "
         "logit moves at Adam's rate whatever c·r(t) is, and p^j reaches ~1 long before the ramp ends")
-    handover: Literal["drop", "fold", "fold-linear", "distil"] = Field(
+    handover: Literal["drop", "fold", "fold-linear", "distil", "fade"] = Field(
         "drop",
         description="how the three-phase schedule hands the policy and value over to the student at the drop. "
         "drop (the authors' code): the teachers, encoders and q are removed and every layer computes "
@@ -87,7 +87,10 @@ class MiktConfig(BaseModel):
         "contribution Σ_k p^j_k z^j_k (over recent rollouts) is added to its bias. fold-linear: as fold, but "
         "the teachers' contribution is replaced by its least-squares fit on the layer's input (a linear map "
         "plus a bias) instead of its mean. distil: over the handover_window before the drop, the teacher-free "
-        "path is trained to match the mixed policy (KL of the mixed policy to it) and value, then dropped")
+        "path is trained to match the mixed policy (KL of the mixed policy to it) and value, then dropped. "
+        "fade: over the handover_window the teachers' weights are scaled down to 0 and the student's up to 1 "
+        "(p_s + u(1 − p_s), (1 − u) p_k, u: 0 → 1 across the window) while PPO trains on, so the network at "
+        "the drop is already (almost) the teacher-free student")
     handover_window: float = Field(
         0.05, gt=0, lt=1, description="distil: the fraction of training before the drop during which the "
         "teacher-free path is distilled; fold, fold-linear: unused (their statistics are a running mean over "
@@ -186,6 +189,8 @@ class MiktActorCritic(ActorCritic):
         # The ramp's value as a tensor the loss reads, so a compiled loss (PPOConfig.compile_loss) takes it
         # as an input instead of compiling again for every new value; not saved (set_progress sets it).
         self.register_buffer("coupling_weight", torch.tensor(1.0), persistent=False)
+        self.fading = False  # handover "fade", inside the window: fade_weight (a tensor, as above) is u
+        self.register_buffer("fade_weight", torch.tensor(0.0), persistent=False)
 
     # --- schedule -----------------------------------------------------------------------------------
     def set_progress(self, fraction: float) -> None:
@@ -213,7 +218,12 @@ class MiktActorCritic(ActorCritic):
         # guards on the bools, which change once each, and takes the tensor as an input).
         self.coupling_scale, self.coupling_on = scale, scale > 0
         self.coupling_weight.fill_(scale)
-        self.distilling = cfg.handover == "distil" and cfg.phase(fraction) == HANDOVER_WINDOW
+        in_window = cfg.phase(fraction) == HANDOVER_WINDOW
+        self.distilling = cfg.handover == "distil" and in_window
+        self.fading = cfg.handover == "fade" and in_window
+        window_start = cfg.drop_teacher_at - cfg.handover_window
+        self.fade_weight.fill_(min(max((fraction - window_start) / cfg.handover_window, 0.0), 1.0)
+                               if self.fading else 0.0)
         self._fraction = fraction
 
     # --- hand-over by folding ------------------------------------------------------------------------
@@ -272,7 +282,7 @@ class MiktActorCritic(ActorCritic):
         if not self.fold_rollouts:
             raise MiktError(f"handover '{self.config.handover}': the checkpoint holds no statistics of the "
                             "teachers' contribution to fold (written before mikt kept them)",
-                            hint="use --handover drop or distil for this run")
+                            hint="use --handover drop, distil or fade for this run")
         w_pi, w_vf = self.mixing_weights()
         for branch, net, weights in (("pi", self.pi, w_pi), ("vf", self.vf, w_vf)):
             for j, (w, b) in enumerate(net.layer_params):
@@ -291,8 +301,20 @@ class MiktActorCritic(ActorCritic):
 
     # --- forward ------------------------------------------------------------------------------------
     def mixing_weights(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """(layers, 1 + K) softmax weights for policy and value; column 0 is the student."""
+        """(layers, 1 + K) softmax weights for policy and value; column 0 is the student. What the mixing
+        logits say (the coupling loss and the logs read these), before any fade."""
         return torch.softmax(self.mix_logits_pi, -1), torch.softmax(self.mix_logits_vf, -1)
+
+    def _faded(self, weights: torch.Tensor) -> torch.Tensor:
+        """The weights the network mixes with: as learned, or moved towards the student by the fade."""
+        if not self.fading:
+            return weights
+        u = self.fade_weight
+        return torch.cat([weights[:, :1] + u * (1.0 - weights[:, :1]), (1.0 - u) * weights[:, 1:]], 1)
+
+    def forward_weights(self) -> tuple[torch.Tensor, torch.Tensor]:
+        w_pi, w_vf = self.mixing_weights()
+        return self._faded(w_pi), self._faded(w_vf)
 
     def embeddings(self, obs: torch.Tensor) -> list[torch.Tensor]:
         return [enc(obs) for enc in self.encoders]
@@ -338,7 +360,7 @@ class MiktActorCritic(ActorCritic):
     def action_mean(self, obs: torch.Tensor) -> torch.Tensor:
         if not self.teacher_active:
             return self.pi(obs)
-        return self._policy(obs, self.embeddings(obs), torch.softmax(self.mix_logits_pi, -1))
+        return self._policy(obs, self.embeddings(obs), self._faded(torch.softmax(self.mix_logits_pi, -1)))
 
     def rollout_actor(self, obs: torch.Tensor) -> Callable[[], torch.Tensor]:
         """`action_mean(obs)` for the rollout's fixed input, op for op as `embeddings`, `_teacher_z` and
@@ -350,7 +372,7 @@ class MiktActorCritic(ActorCritic):
         n = obs.shape[0]
         embed = [enc.rollout_forward(obs) for enc in self.encoders]
         with torch.no_grad():
-            weights = torch.softmax(self.mix_logits_pi, -1)
+            weights = self._faded(torch.softmax(self.mix_logits_pi, -1))
         teachers = [_RolloutPreactivations(t.pi, n) for t in self.teachers]
         lateral = ([[u.weight.detach().t() for u in us] for us in self.lateral_pi]
                    if self.lateral_pi is not None else None)
@@ -397,14 +419,14 @@ class MiktActorCritic(ActorCritic):
     def value(self, obs: torch.Tensor) -> torch.Tensor:
         if not self.teacher_active:
             return self.vf(obs).squeeze(-1)
-        return self._value(obs, self.embeddings(obs), torch.softmax(self.mix_logits_vf, -1))
+        return self._value(obs, self.embeddings(obs), self._faded(torch.softmax(self.mix_logits_vf, -1)))
 
     def mean_and_value(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         # evaluate_actions's mean and value, the encoders run once, no L_MI or coupling (nothing reads them)
         if not self.teacher_active:
             return self.pi(obs), self.vf(obs).squeeze(-1)
         embs = self.embeddings(obs)
-        w_pi, w_vf = self.mixing_weights()
+        w_pi, w_vf = self.forward_weights()
         return self._policy(obs, embs, w_pi), self._value(obs, embs, w_vf)
 
     def evaluate_actions(self, obs: torch.Tensor):
@@ -412,7 +434,8 @@ class MiktActorCritic(ActorCritic):
             return self.pi(obs), self.vf(obs).squeeze(-1), {}
         embs = self.embeddings(obs)
         w_pi, w_vf = self.mixing_weights()
-        mean, value = self._policy(obs, embs, w_pi), self._value(obs, embs, w_vf)
+        f_pi, f_vf = self._faded(w_pi), self._faded(w_vf)
+        mean, value = self._policy(obs, embs, f_pi), self._value(obs, embs, f_vf)
         cfg = self.config
         losses = {}
         if self.coupling_on and (cfg.coupling_pi_coef or cfg.coupling_vf_coef):
