@@ -67,3 +67,16 @@ def test_a_new_version_is_numbered_above_both_layers_and_written_locally(shipped
 def test_the_switch_hides_the_layer(shipped, registry, monkeypatch):
     monkeypatch.setenv("MIKT_PACKAGED_TEACHERS", "0")
     assert "no teachers in" in mikt("teacher", "list").output
+
+
+def test_an_import_never_silently_replaces_a_shipped_teacher(registry, monkeypatch):
+    from helpers import FIXTURE, mikt
+
+    monkeypatch.setenv("MIKT_PACKAGED_TEACHERS", "1")
+    out = mikt("teacher", "import", FIXTURE, "--env", "hopper", code=1).output
+    assert "teacher 'hopper' exists already (hopper@v2, shipped with mikt)" in out
+    assert "--name hopper-sb3" in out
+    assert json.loads(mikt("teacher", "show", "hopper", "--json").stdout)["source"] == "packaged"
+    r = mikt("teacher", "import", FIXTURE, "--env", "hopper", "--name", "hopper")  # on purpose: the next version
+    assert r.stdout.strip() == "hopper@v3"
+    assert "in place of hopper@v2 (trained by mikt" in r.output and "unreadable" not in r.output

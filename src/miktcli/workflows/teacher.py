@@ -15,7 +15,14 @@ from miktcli.ppo import PPOConfig
 from miktcli.registry.cards import RunConfig, TeacherCard, code_version, now, package_versions
 from miktcli.registry.importers import read_foreign_policy
 from miktcli.registry.runs import Run
-from miktcli.registry.teachers import check_name, publish_teacher, read_teacher_card, teachers_dir, versions
+from miktcli.registry.teachers import (
+    check_name,
+    find,
+    publish_teacher,
+    read_teacher_card,
+    resolve,
+    versions,
+)
 from miktcli.workflows.session import Event, Job, Phase, check_registry_writable, new_run
 
 
@@ -91,6 +98,15 @@ def import_teacher(registry: Path, path: Path, *, fmt: str, env: str, name: str 
     teacher, after checking its dims and layers against the env spec; nothing is unpickled."""
     spec = load_spec(env)
     teacher_name = check_name(env if name is None else name)
+    if name is None and versions(registry, teacher_name):
+        # By default an import is named after its env, as the shipped teachers are: it would silently become
+        # what `--from hopper` and `mikt eval hopper` mean.
+        latest = find(registry, teacher_name)
+        where = "shipped with mikt" if latest.source == "packaged" else f"in {registry}"
+        raise MiktError(f"teacher '{teacher_name}' exists already ({latest.ref}, {where}): an import named after "
+                        f"its env would replace it wherever `{teacher_name}` is named without a version",
+                        hint=f"give it a name of its own (--name {teacher_name}-{fmt}), or --name {teacher_name} "
+                             f"to add it as the next version on purpose")
     imported = read_foreign_policy(path, fmt, obs_stats, activation)
     policy = imported.policy
     obs_dim, act_dim = policy.obs_normalizer.mean.shape[0], policy.log_std.shape[0]
@@ -117,4 +133,4 @@ def shadowed_teacher(registry: Path, card: TeacherCard) -> TeacherCard | None:
     older = [v for v in versions(registry, card.name) if v < card.version]
     if not older:
         return None
-    return read_teacher_card(teachers_dir(registry) / card.name / f"v{older[-1]}.safetensors")
+    return read_teacher_card(resolve(registry, f"{card.name}@v{older[-1]}"))  # either layer: a shipped one too
