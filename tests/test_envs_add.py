@@ -107,3 +107,10 @@ def test_names_are_checked_before_anything_is_written(specs):
     assert "exists already" in mikt("envs", "add", ASSETS / "hopper.xml", "--name", "hopper", code=1).output
     assert "invalid environment name" in mikt("envs", "add", ASSETS / "hopper.xml", "--name", "A/b", code=1).output
     assert list(specs.iterdir()) == []
+
+
+def test_a_name_ending_in_toml_is_refused_before_anything_is_written(specs):
+    out = mikt("envs", "add", ASSETS / "hopper.xml", "--name", "w.toml", code=1).output
+    assert "it may not end in .toml" in out and "--name w" in out
+    assert not list(specs.iterdir())
+    mikt("envs")  # still lists

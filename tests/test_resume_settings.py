@@ -42,3 +42,22 @@ def test_a_study_cell_records_the_grid_s_eval_episodes(registry):
                                 "pairs": [{"from": ["x"], "to": "centipede-four"}]})
     [(_, run)] = Study(grid, registry.parent / "out", registry).prepare("test")
     assert run.card.config.eval_episodes == 2
+
+
+def test_a_resume_may_change_the_update_mode_and_the_card_says_from_which_step(registry, ctrl_c_at_second_update):
+    mikt("teacher", "train", "hopper", "--steps", 6144, "--no-compile", code=1)  # interrupted at 2,048
+    ctrl_c_at_second_update()
+    mikt("teacher", "train", "--resume", "run1", "--compile")
+    ppo = json.loads(mikt("inspect", "run1", "--json").stdout)["card"]["config"]["ppo"]
+    assert ppo["compile_loss"] is True
+    assert ppo["compile_reason"] == "off: asked (--no-compile); from step 2,048: on, asked on resume (--compile)"
+
+
+def test_auto_compile_probes_the_compiler_and_a_broken_one_turns_it_off(monkeypatch):
+    from miktcli import compile_choice
+
+    monkeypatch.setenv("CXX", "/bin/false")
+    compile_choice.compiler_works.cache_clear()
+    compiled, reason = compile_choice.decide_compile(None, 2_000_000)
+    assert not compiled and reason == "auto: off, the C++ compiler /bin/false does not compile a test program"
+    compile_choice.compiler_works.cache_clear()

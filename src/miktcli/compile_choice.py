@@ -12,8 +12,10 @@ silent change.
 
 from __future__ import annotations
 
+import functools
 import os
 import shutil
+import subprocess
 
 AUTO_MIN_STEPS = 500_000
 
@@ -26,6 +28,24 @@ def cxx_compiler() -> str | None:
     return None
 
 
+@functools.cache
+def compiler_works(cxx: str) -> bool:
+    """Whether `cxx` compiles a one-line C++ program (a compiler that is there but broken, e.g. CXX=/bin/false,
+    would otherwise fail the run at its first update)."""
+    try:
+        done = subprocess.run([cxx, "-x", "c++", "-fsyntax-only", "-"], input="int main() { return 0; }\n",
+                              capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.SubprocessError):
+        return False
+    return done.returncode == 0
+
+
+def change_on_resume(recorded: str, compiled: bool, step: int) -> str:
+    """The card's compile_reason once a resume asked for the other update mode: both, with the step."""
+    return f"{recorded}; from step {step:,}: {'on' if compiled else 'off'}, asked on resume " \
+           f"({'--compile' if compiled else '--no-compile'})"
+
+
 def decide_compile(requested: bool | None, total_steps: int) -> tuple[bool, str]:
     """(compile or not, the reason recorded in the card). requested: True/False asked, None for auto."""
     if requested is True:
@@ -35,6 +55,9 @@ def decide_compile(requested: bool | None, total_steps: int) -> tuple[bool, str]
     if total_steps < AUTO_MIN_STEPS:
         return False, (f"auto: off, {total_steps:,} steps is below {AUTO_MIN_STEPS:,}, where the compile "
                        f"(~20-30 s per graph) is repaid")
-    if cxx_compiler() is None:
+    cxx = cxx_compiler()
+    if cxx is None:
         return False, "auto: off, no C++ compiler found (torch.compile needs one: install g++, or set $CXX)"
+    if not compiler_works(cxx):
+        return False, f"auto: off, the C++ compiler {cxx} does not compile a test program"
     return True, f"auto: on, {total_steps:,} steps (compiling pays from {AUTO_MIN_STEPS:,})"

@@ -51,7 +51,21 @@ def setup_torch() -> None:
 
 # What a resumed run may still be told: how to report and where its registry is. Everything else (method,
 # teachers, steps, seed, envs, options) is the run card's, so a flag for it would be silently ignored.
-RESUME_COMPATIBLE = {"resume", "as_json", "registry", "eval_episodes"}
+RESUME_COMPATIBLE = {"resume", "as_json", "registry", "eval_episodes", "compile_loss"}
+
+
+def change_update_mode_on_resume(run, compile_loss: bool | None) -> None:
+    """`--resume RUN --compile/--no-compile`: the update's mode may change mid-run (the same maths to float
+    rounding); the card's compile_reason records from which step."""
+    from miktcli.compile_choice import change_on_resume
+
+    ppo = run.card.config.ppo
+    if compile_loss is None or compile_loss == ppo.compile_loss:
+        return
+    reason = change_on_resume(ppo.compile_reason, compile_loss, run.card.steps_done)
+    config = run.card.config.model_copy(update={"ppo": ppo.model_copy(update={"compile_loss": compile_loss,
+                                                                              "compile_reason": reason})})
+    run.save_card(config=config)
 
 
 def given_on_command_line(ctx: typer.Context, names: set[str] | None = None) -> list[str]:

@@ -17,6 +17,7 @@ from miktcli.cli.common import (
     RegistryOption,
     SeedOption,
     StepsOption,
+    change_update_mode_on_resume,
     command_line,
     note_compile,
     note_rounding,
@@ -59,6 +60,7 @@ def train(
     if resume:
         refuse_options_with_resume(ctx)
         run = open_resumable(registry, resume, "teacher")
+        change_update_mode_on_resume(run, compile_loss)
     else:
         if env is None:
             raise MiktError("give an environment name, or --resume RUN")

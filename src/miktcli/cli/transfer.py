@@ -13,6 +13,7 @@ from miktcli.cli.common import (
     RegistryOption,
     SeedOption,
     StepsOption,
+    change_update_mode_on_resume,
     command_line,
     given_on_command_line,
     note_rounding,
@@ -82,7 +83,7 @@ def start_branch(ctx: typer.Context, registry, source: str | None, at: str | Non
 
 
 # what --branch may be given beside method options: the branch point, output and where the registry is
-BRANCH_COMPATIBLE = {"branch", "at", "as_json", "registry", "eval_episodes"}
+BRANCH_COMPATIBLE = {"branch", "at", "as_json", "registry", "eval_episodes", "compile_loss"}
 
 
 def transfer(
@@ -120,6 +121,7 @@ def transfer(
         else:
             refuse_options_with_resume(ctx)
             run = open_resumable(reg, resume, "transfer")
+        change_update_mode_on_resume(run, compile_loss)
         if run.card.config.eval_episodes is not None and not given_on_command_line(ctx, {"eval_episodes"}):
             eval_episodes = run.card.config.eval_episodes  # what the run was started with, not the default
     else:

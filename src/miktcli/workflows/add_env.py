@@ -84,6 +84,9 @@ def add_mjcf(xml: Path, name: str, torso: str | None = None, folder: Path | None
     xml = Path(xml).expanduser()
     if not SPEC_NAME_RE.fullmatch(name):
         raise MiktError(f"invalid environment name '{name}': lowercase letters, digits, '.', '_' and '-'")
+    if name.endswith(".toml"):  # its model folder NAME/ would read as a spec file to every later `mikt envs`
+        raise MiktError(f"invalid environment name '{name}': it may not end in .toml",
+                        hint=f"--name {name[:-len('.toml')] or 'my-robot'}")
     folder = Path(folder) if folder is not None else user_specs_dir()
     if name in spec_names():
         raise MiktError(f"environment '{name}' exists already", hint="choose another --name")
