@@ -233,3 +233,9 @@ def test_steps_round_up_to_whole_rollouts_and_say_so(registry):
     assert "--steps 3,000 is not a whole number of rollouts: training 4,096 steps" in r.output
     card = json.loads(mikt("runs", "--json").stdout)[0]
     assert card["total_steps"] == 4096 and card["steps_done"] == 4096
+
+
+def test_shell_completion_is_on(monkeypatch):
+    monkeypatch.setenv("SHELL", "/bin/bash")
+    assert "--install-completion" in mikt("--help").stdout
+    assert "_mikt_completion" in mikt("--show-completion", "bash").stdout
