@@ -114,3 +114,25 @@ def test_a_name_ending_in_toml_is_refused_before_anything_is_written(specs):
     assert "it may not end in .toml" in out and "--name w" in out
     assert not list(specs.iterdir())
     mikt("envs")  # still lists
+
+
+@pytest.mark.parametrize("in_place", [False, True])
+def test_two_adds_of_one_name_at_once_leave_the_first_and_refuse_the_second(specs, tmp_path, monkeypatch, in_place):
+    from miktcli.workflows import add_env
+
+    xml = ASSETS / "hopper.xml"
+    if in_place:  # a model that loads a file outside its folder is not copied: only the spec file is written
+        monkeypatch.setattr(add_env, "_inside", lambda path, folder: False)
+    real = add_env.load_model
+
+    def the_other_add_finishes_first(path):
+        model = real(path)
+        (specs / "bot.toml").write_text("# the other add's spec\n")
+        if not in_place:
+            (specs / "bot").mkdir()
+        return model
+
+    monkeypatch.setattr(add_env, "load_model", the_other_add_finishes_first)
+    out = mikt("envs", "add", xml, "--name", "bot", code=1).output
+    assert "exists already" in out
+    assert (specs / "bot.toml").read_text() == "# the other add's spec\n"

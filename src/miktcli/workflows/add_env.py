@@ -23,7 +23,7 @@ from miktcli.envs.factory import env_dims, model_facts
 from miktcli.envs.mjcf import MjcfEnv, Root, body_name, find_root, load_model, model_files
 from miktcli.envs.spec import SPEC_NAME_RE, MjcfSpec, load_spec_file, spec_names, user_specs_dir
 from miktcli.errors import MiktError
-from miktcli.registry.files import write_text_atomic
+from miktcli.registry.files import write_bytes_atomic
 
 # healthy_z_min of an added model: this fraction of the torso's starting height (gymnasium's Hopper, Walker2d
 # and Humanoid stop at 0.56, 0.64 and 0.71 of theirs); no other health check, nothing else but defaults.
@@ -126,10 +126,22 @@ def add_mjcf(xml: Path, name: str, torso: str | None = None, folder: Path | None
         spec = _spec(name, xml_field, root, model, torso, obs_dim=obs_dim, act_dim=act_dim,
                      notes=f"added with `mikt envs add` from {xml.name}")
         folder.mkdir(parents=True, exist_ok=True)
+        # Two `envs add --name X` at once: each step below refuses to replace what the other made, so one wins
+        # and the other gets "exists already", and neither removes the winner's files.
         if copied:
-            staging.rename(target_dir)
+            try:
+                target_dir.mkdir()
+            except FileExistsError:
+                raise MiktError(f"{target_dir} exists already", hint="choose another --name") from None
+            staging.rename(target_dir)  # onto the empty folder this process just made
         try:
-            write_text_atomic(target_toml, spec_toml(spec))
+            write_bytes_atomic(target_toml, spec_toml(spec).encode(), exclusive=True)
+        except FileExistsError:
+            if copied:
+                shutil.rmtree(target_dir, ignore_errors=True)
+            raise MiktError(f"environment '{name}' exists already: {target_toml} appeared meanwhile",
+                            hint="choose another --name") from None
+        try:
             spec = load_spec_file(target_toml)  # what every later command reads: it must parse back
         except BaseException:
             target_toml.unlink(missing_ok=True)
