@@ -239,3 +239,24 @@ def test_shell_completion_is_on(monkeypatch):
     monkeypatch.setenv("SHELL", "/bin/bash")
     assert "--install-completion" in mikt("--help").stdout
     assert "_mikt_completion" in mikt("--show-completion", "bash").stdout
+
+
+def test_eval_reports_how_far_and_how_fast_the_body_moved(registry):
+    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+    out = json.loads(mikt("eval", "tiny", "--episodes", 2, "--json").stdout)
+    assert {"distance_mean", "distance_std", "speed_mean"} <= out.keys()
+    assert "forward" in mikt("eval", "tiny", "--episodes", 1).stdout
+
+
+def test_the_forward_position_is_what_each_family_rewards():
+    from miktcli.envs import make_env
+    from miktcli.envs.factory import forward_position
+
+    for name, own in (("centipede-four", lambda e: e.unwrapped.front_x()),  # the forward reward's x
+                      ("hopper", lambda e: float(e.unwrapped.data.qpos[0])),  # gymnasium's x_position
+                      ("ant", lambda e: float(e.unwrapped.data.qpos[0]))):
+        env = make_env(name)
+        env.reset(seed=0)
+        env.step(env.action_space.sample())
+        assert forward_position(env) == own(env)
+        env.close()

@@ -11,6 +11,7 @@ import torch
 
 from miktcli import limits
 from miktcli.envs import make_env
+from miktcli.envs.factory import forward_position
 from miktcli.envs.failures import env_failure
 from miktcli.limits import check_count
 from miktcli.policies import ActorCritic
@@ -23,13 +24,19 @@ class EvalResult:
     lengths: list[int]
     frames: list[np.ndarray] = field(default_factory=list)
     fps: int = 20  # the env's render rate, for a video of the frames
+    distances: list[float] = field(default_factory=list)  # forward progress of each episode (env units, m)
+    speeds: list[float] = field(default_factory=list)  # distance / simulated time
 
     def summary(self) -> dict[str, float]:
-        return {
+        out = {
             "episodes": len(self.returns),
             "return_mean": float(np.mean(self.returns)), "return_std": float(np.std(self.returns)),
             "length_mean": float(np.mean(self.lengths)), "length_std": float(np.std(self.lengths)),
         }
+        if self.distances:  # walking and standing can score alike where a survival bonus pays: say which
+            out.update(distance_mean=float(np.mean(self.distances)), distance_std=float(np.std(self.distances)),
+                       speed_mean=float(np.mean(self.speeds)))
+        return out
 
 
 def run_episodes(
@@ -48,6 +55,7 @@ def run_episodes(
         except Exception as err:  # noqa: BLE001 - as for step below
             raise env_failure(env, err, "reset") from err
         total, length, done = 0.0, 0, False
+        start = forward_position(env)
         while not done:
             if ep < capture_episodes and length % frame_every == 0 \
                     and (max_frames is None or len(result.frames) < max_frames):
@@ -64,6 +72,10 @@ def run_episodes(
             done = terminated or truncated
         result.returns.append(total)
         result.lengths.append(length)
+        end = forward_position(env)
+        if start is not None and end is not None:
+            result.distances.append(end - start)
+            result.speeds.append((end - start) / (length * float(getattr(env.unwrapped, "dt", 1.0))))
     return result
 
 

@@ -73,5 +73,7 @@ def eval_command(
     if as_json:
         print_json(summary)
         return
+    moved = (f", forward {summary['distance_mean']:.2f} ± {summary['distance_std']:.2f} m "
+             f"({summary['speed_mean']:.2f} m/s)" if "distance_mean" in summary else "")
     print_data(f"{label} on {env_name}: return {summary['return_mean']:.1f} ± {summary['return_std']:.1f}, "
-          f"length {summary['length_mean']:.0f} ± {summary['length_std']:.0f} over {episodes} episodes")
+               f"length {summary['length_mean']:.0f} ± {summary['length_std']:.0f}{moved} over {episodes} episodes")

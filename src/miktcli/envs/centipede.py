@@ -80,6 +80,10 @@ class CentipedeEnv(gym.Env):
     def front_x(self) -> float:
         return float(self.data.xpos[self._front_body, 0])
 
+    def forward_position(self) -> float:
+        """Where the body is along its direction of travel (what the forward reward differentiates)."""
+        return self.front_x()
+
     # --- gymnasium API ------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)

@@ -105,3 +105,14 @@ def register_with_gymnasium() -> list[str]:
                          max_episode_steps=spec.max_episode_steps)
         ids.append(env_id)
     return ids
+
+
+def forward_position(env: gym.Env) -> float | None:
+    """Where an env's body is along its direction of travel: mikt's own families say it themselves; a
+    gymnasium MuJoCo locomotion env's root x is its first qpos entry (Hopper's rootx, Ant's free joint). None
+    for an env with neither."""
+    base = env.unwrapped
+    if hasattr(base, "forward_position"):
+        return float(base.forward_position())
+    data = getattr(base, "data", None)
+    return float(data.qpos[0]) if data is not None and getattr(data, "qpos", None) is not None else None

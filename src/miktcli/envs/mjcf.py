@@ -249,6 +249,10 @@ class MjcfEnv(gym.Env):
     def _forward_position(self) -> float:
         return float(self.root_position() @ self._forward_axis)
 
+    def forward_position(self) -> float:
+        """Where the body is along its direction of travel (what the forward reward differentiates)."""
+        return self._forward_position()
+
     def contact_forces(self) -> np.ndarray:
         low, high = self.spec_.contact_force_range
         return np.clip(self.data.cfrc_ext[1:], low, high)
