@@ -155,3 +155,13 @@ def test_subnormals_are_flushed_inside_the_update_only_and_old_cards_kept_them()
         assert float(x / 8) != 0.0
     assert PPOConfig().flush_denormal
     assert not PPOConfig.from_record({}).flush_denormal  # what runs before the setting did
+
+
+def test_the_trainer_sets_torch_s_threads_as_its_config_records():
+    torch.set_num_threads(2)  # as a notebook or a script might have left it
+    try:
+        t = trainer()
+        assert torch.get_num_threads() == t.config.torch_threads == 1
+    finally:
+        torch.set_num_threads(1)
+    assert PPOConfig.from_record({}).torch_threads == 1  # older cards trained with the CLI's one thread

@@ -71,6 +71,9 @@ class PPOConfig(BaseModel):
         "authors' code did too. Off: subnormals are kept; MIKT's decoder rows for constant observation dims and "
         "Adam's moments of parameters without gradient decay into that range as a run trains, and on CPUs "
         "that take a microcode assist for each subnormal operand every op reading them slows down")
+    torch_threads: int = Field(1, ge=1, le=256, description="torch's intra-op threads while training, set by the "
+                               "trainer (the CLI and the Python API alike): results depend on it, since "
+                               "reductions split differently; one is also the fastest on these small networks")
     compile_loss: bool = Field(
         False, description="run the minibatch loss and its gradient through torch.compile: the same maths to "
         "float rounding, faster updates on a CPU (benchmarks/throughput.py), a compile of ~30 s at the start "
@@ -244,6 +247,7 @@ class PPOTrainer:
         seed: int,
     ):
         self.agent, self.config, self.seed = agent, config, seed
+        torch.set_num_threads(config.torch_threads)  # the same numbers from the CLI, a script or a notebook
         self.total_steps = total_steps
         self.num_iterations = max(1, total_steps // config.batch_size)
         self.iteration = 0
