@@ -192,3 +192,22 @@ def test_a_published_teacher_carries_this_codes_schema_version(registry):
     card = publish_teacher(registry, make_card(schema_version=1), GaussianActorCritic(11, 3, [8, 8], [8, 8]))
     assert card.schema_version == TEACHER_SCHEMA_VERSION
     assert load_teacher(registry, "tiny").card.schema_version == TEACHER_SCHEMA_VERSION
+
+
+def test_a_run_whose_card_cannot_be_written_leaves_no_folder(registry, monkeypatch):
+    import errno
+
+    from miktcli.ppo import PPOConfig
+    from miktcli.registry import runs as runs_module
+    from miktcli.registry.cards import RunConfig
+    from miktcli.registry.runs import Run
+
+    def disk_full(self, **updates):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Run, "save_card", disk_full)
+    with pytest.raises(MiktError, match="No space left on device"):
+        runs_module.create_run(registry, kind="teacher", env="hopper", method="vpg", seed=0, total_steps=2048,
+                               config=RunConfig(ppo=PPOConfig(), pi_hidden=[8], vf_hidden=[8]), command="x",
+                               code_version="x", packages={})
+    assert not list((registry / "runs").iterdir())

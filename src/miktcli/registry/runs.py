@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -232,9 +233,15 @@ def create_run(registry: Path, **fields: Any) -> Run:
             continue
     _last_created[root.resolve()] = number
     stamp = now()
-    card = RunCard(run_id=path.name, status="created", created=stamp, updated=stamp, **fields)
-    run = Run(path, card)
-    run.save_card()
+    try:
+        run = Run(path, RunCard(run_id=path.name, status="created", created=stamp, updated=stamp, **fields))
+        run.save_card()
+    except BaseException as err:  # a full disk, Ctrl-C: no folder without its card is left behind
+        shutil.rmtree(path, ignore_errors=True)
+        if isinstance(err, OSError):
+            raise MiktError(f"cannot create {path}: {err.strerror or err}",
+                            hint="free some space or choose another --registry") from err
+        raise
     return run
 
 
