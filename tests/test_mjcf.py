@@ -106,3 +106,23 @@ def test_mjcf_spec_values_are_checked():
         mjcf_spec(xml="a.xml", obs_dim=1, act_dim=1, healthy_angle_range=(1, -1))
     with pytest.raises(MiktError, match="not read from a file"):
         mjcf_spec(xml="a.xml", obs_dim=1, act_dim=1).xml_path()
+
+
+def test_unnamed_actuators_are_named_after_what_they_drive_and_odd_names_read(tmp_path):
+    import mujoco
+
+    from miktcli.envs.factory import actuator_name
+    from miktcli.envs.mjcf import body_name
+
+    xml = ('<mujoco><worldbody><body name="b"><joint name="hip" type="hinge"/><geom size="0.1"/>'
+           '<site name="s1"/><body name="c"><joint name="knee" type="hinge"/>'
+           '<geom type="capsule" size="0.1" fromto="0 0 0 0 0 1"/><site name="s2" pos="0 0 1"/></body></body>'
+           '</worldbody><tendon><spatial name="tnd"><site site="s1"/><site site="s2"/></spatial></tendon>'
+           '<actuator><motor site="s1" gear="1 0 0 0 0 0"/><motor tendon="tnd"/><motor joint="knee"/>'
+           '<motor name="own" joint="hip"/></actuator></mujoco>')
+    m = mujoco.MjModel.from_xml_string(xml)
+    assert [actuator_name(m, i) for i in range(m.nu)] == ["s1", "tnd", "knee", "own"]
+    path = tmp_path / "latin.xml"  # a name written by an older tool in ISO-8859-1, not UTF-8
+    path.write_bytes('<mujoco><worldbody><body name="b\xe9"><geom size="0.1"/></body></worldbody></mujoco>'
+                     .encode("latin-1"))
+    assert body_name(mujoco.MjModel.from_xml_path(str(path)), 1) == "b\ufffd"

@@ -10,6 +10,7 @@ import mujoco
 
 from miktcli.envs.failures import remember_spec_name
 from miktcli.envs.gl_backend import load_gl_backend
+from miktcli.envs.mjcf import object_name
 from miktcli.envs.mujoco_warnings import capture_mujoco_warnings
 from miktcli.envs.spec import AnySpec, load_spec, scan_specs
 from miktcli.errors import EnvKeywordError, MiktError
@@ -61,16 +62,31 @@ def mujoco_model(env: gym.Env) -> Any:
     return env.unwrapped.model
 
 
+# what an actuator drives, by its transmission type: the object its trnid names
+_TRANSMITTED = {mujoco.mjtTrn.mjTRN_JOINT: mujoco.mjtObj.mjOBJ_JOINT,
+                mujoco.mjtTrn.mjTRN_JOINTINPARENT: mujoco.mjtObj.mjOBJ_JOINT,
+                mujoco.mjtTrn.mjTRN_TENDON: mujoco.mjtObj.mjOBJ_TENDON,
+                mujoco.mjtTrn.mjTRN_SITE: mujoco.mjtObj.mjOBJ_SITE,
+                mujoco.mjtTrn.mjTRN_BODY: mujoco.mjtObj.mjOBJ_BODY}
+
+
+def actuator_name(m: Any, i: int) -> str:
+    """An actuator's name, else the name of what it drives (joint, tendon, site, body), else actuator{i}."""
+    own = object_name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, i)
+    if own:
+        return own
+    target = _TRANSMITTED.get(mujoco.mjtTrn(int(m.actuator_trntype[i])))
+    driven = object_name(m, target, int(m.actuator_trnid[i, 0])) if target is not None else ""
+    return driven or f"actuator{i}"
+
+
 def model_facts(env: gym.Env) -> dict[str, Any]:
     """Names of the bodies, joints and actuators of a MuJoCo-backed environment."""
     m = mujoco_model(env)
     return {
-        "bodies": [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, i) or f"body{i}" for i in range(m.nbody)],
-        "joints": [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, i) or f"joint{i}" for i in range(m.njnt)],
-        "actuators": [
-            mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or m.joint(m.actuator_trnid[i, 0]).name
-            for i in range(m.nu)
-        ],
+        "bodies": [object_name(m, mujoco.mjtObj.mjOBJ_BODY, i) or f"body{i}" for i in range(m.nbody)],
+        "joints": [object_name(m, mujoco.mjtObj.mjOBJ_JOINT, i) or f"joint{i}" for i in range(m.njnt)],
+        "actuators": [actuator_name(m, i) for i in range(m.nu)],
         "nq": int(m.nq),
         "nv": int(m.nv),
         "timestep": float(m.opt.timestep),

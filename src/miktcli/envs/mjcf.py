@@ -120,8 +120,24 @@ def load_model(path: Path) -> mujoco.MjModel:
         raise MiktError(f"{path}: not a valid MJCF model: {_one_line(err)}") from err
 
 
+_NAME_ADDRESS = {mujoco.mjtObj.mjOBJ_BODY: "name_bodyadr", mujoco.mjtObj.mjOBJ_JOINT: "name_jntadr",
+                 mujoco.mjtObj.mjOBJ_ACTUATOR: "name_actuatoradr", mujoco.mjtObj.mjOBJ_TENDON: "name_tendonadr",
+                 mujoco.mjtObj.mjOBJ_SITE: "name_siteadr"}
+
+
+def object_name(m: Any, kind: mujoco.mjtObj, i: int) -> str:
+    """An object's name, '' when it has none; a name that is not UTF-8 (ISO-8859-1 from an older tool) is
+    read with its odd bytes replaced instead of failing."""
+    try:
+        return mujoco.mj_id2name(m, kind, i) or ""
+    except UnicodeDecodeError:
+        start = int(getattr(m, _NAME_ADDRESS[kind])[i])
+        raw = bytes(m.names[start:]).split(b"\0", 1)[0]
+        return raw.decode("utf-8", errors="replace")
+
+
 def body_name(model: mujoco.MjModel, body: int) -> str:
-    return mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, body) or f"body{body}"
+    return object_name(model, mujoco.mjtObj.mjOBJ_BODY, body) or f"body{body}"
 
 
 @dataclass(frozen=True)
