@@ -14,7 +14,7 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Literal, NamedTuple
+from typing import Any, ClassVar, Literal, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -84,6 +84,33 @@ class PPOConfig(BaseModel):
     @property
     def batch_size(self) -> int:
         return self.n_steps * self.num_envs
+
+    # Decided by --compile/--no-compile (auto from the run's size), not set one by one.
+    NOT_SETTABLE: ClassVar[frozenset[str]] = frozenset({"compile_loss", "compile_reason"})
+
+    @classmethod
+    def settable(cls) -> list[str]:
+        """The settings `--ppo KEY=VALUE` and a grid method's `ppo = {…}` may change."""
+        return [k for k in cls.model_fields if k not in cls.NOT_SETTABLE]
+
+    @classmethod
+    def with_settings(cls, settings: dict[str, Any], **base: Any) -> PPOConfig:
+        """`base` (the command's own flags) with the user's settings on top; an unknown key or a bad value is
+        one MiktError naming the valid keys or the field. A setting given twice (a flag and --ppo) is refused."""
+        from pydantic import ValidationError
+
+        from miktcli.errors import describe_validation_error
+
+        unknown = sorted(set(settings) - set(cls.settable()))
+        if unknown:
+            raise MiktError(f"unknown PPO setting '{unknown[0]}'; the settings are: {', '.join(cls.settable())}")
+        twice = sorted(k for k in settings if base.get(k) is not None)
+        if twice:
+            raise MiktError(f"PPO setting '{twice[0]}' is given twice (its own flag and --ppo / the grid's ppo)")
+        try:
+            return cls(**{k: v for k, v in base.items() if v is not None}, **settings)
+        except ValidationError as err:
+            raise MiktError(f"bad PPO setting: {describe_validation_error(err)}") from err
 
     @classmethod
     def from_record(cls, record: dict[str, Any]) -> PPOConfig:

@@ -28,7 +28,31 @@ CompileOption = Annotated[bool | None, typer.Option(
     help="Compile the PPO update with torch.compile (the same maths to float rounding; faster updates, ~20-30 s "
     "to compile; needs a C++ compiler). Default: auto, on from 500,000 steps when a compiler is found. The "
     "choice and its reason are recorded in the run.")]
+PPOSettingsOption = Annotated[list[str] | None, typer.Option(
+    "--ppo", metavar="KEY=VALUE", show_default=False,
+    help="A PPO setting, repeatable (e.g. --ppo clip_range=0.1 --ppo bootstrap_truncation=false); recorded in "
+    "the run. `mikt transfer --help` lists the settings.")]
 DEFAULT_REGISTRY = Path("registry")
+
+
+def parse_ppo_settings(items: list[str] | None) -> dict[str, str]:
+    """`--ppo KEY=VALUE` items as {key: value as typed}; PPOConfig validates and converts them."""
+    settings: dict[str, str] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise typer.BadParameter(f"expected KEY=VALUE, got {item!r}", param_hint="'--ppo'")
+        settings[key.strip()] = value.strip()
+    return settings
+
+
+def ppo_settings_help() -> str:
+    from miktcli.ppo import PPOConfig
+
+    fields = PPOConfig.model_fields
+    return "PPO settings (--ppo KEY=VALUE; in a study grid, a method's ppo = { KEY = VALUE }):\n\n" + "\n\n".join(
+        f"{k} (default {fields[k].default!r})" + (f": {fields[k].description}" if fields[k].description else "")
+        for k in PPOConfig.settable())
 
 
 def command_line() -> str:

@@ -134,5 +134,7 @@ class MethodOptionsCommand(TyperCommand):
         for param in self.params:
             if param.name == "method":
                 param.help = f"{escape(methods_help())}."
-        self.epilog = options_help()
+        from miktcli.cli.common import ppo_settings_help
+
+        self.epilog = options_help() + "\n\n" + escape(ppo_settings_help())
         super().format_help(ctx, formatter)

@@ -14,6 +14,7 @@ from miktcli.cli.common import (
     CompileOption,
     JsonOption,
     NumEnvsOption,
+    PPOSettingsOption,
     RegistryOption,
     SeedOption,
     StepsOption,
@@ -22,6 +23,7 @@ from miktcli.cli.common import (
     note_compile,
     note_rounding,
     parse_hidden,
+    parse_ppo_settings,
     refuse_options_with_resume,
     setup_torch,
 )
@@ -47,6 +49,7 @@ def train(
     name: str = typer.Option(None, "--name", help="Teacher name in the registry (default: the env's name)."),
     num_envs: NumEnvsOption = 1,
     compile_loss: CompileOption = None,
+    ppo: PPOSettingsOption = None,
     hidden: str = typer.Option("64,64", "--hidden", help="Hidden sizes of policy and value MLPs."),
     resume: str = typer.Option(None, "--resume", help="Continue an interrupted teacher run, e.g. run3."),
     registry: RegistryOption = DEFAULT_REGISTRY,
@@ -65,7 +68,8 @@ def train(
         if env is None:
             raise MiktError("give an environment name, or --resume RUN")
         run = start_teacher(registry, env=env, steps=steps, seed=seed, name=name, num_envs=num_envs,
-                            hidden=parse_hidden(hidden), command=command_line(), compile_loss=compile_loss)
+                            hidden=parse_hidden(hidden), command=command_line(), compile_loss=compile_loss,
+                            ppo_settings=parse_ppo_settings(ppo))
         note_rounding(steps, run.card.total_steps)
     err.print(f"{run.id}: teacher on {run.card.env}, {run.card.total_steps} steps, seed {run.card.seed} → {run.path}")
     note_compile(run)

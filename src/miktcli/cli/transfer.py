@@ -10,6 +10,7 @@ from miktcli.cli.common import (
     CompileOption,
     JsonOption,
     NumEnvsOption,
+    PPOSettingsOption,
     RegistryOption,
     SeedOption,
     StepsOption,
@@ -18,6 +19,7 @@ from miktcli.cli.common import (
     given_on_command_line,
     note_rounding,
     parse_hidden,
+    parse_ppo_settings,
     refuse_options_of_other_methods,
     refuse_options_with_resume,
     setup_torch,
@@ -99,6 +101,7 @@ def transfer(
     hidden: str = typer.Option(None, "--hidden", help="Optional check: must equal the teachers' hidden sizes."),
     num_envs: NumEnvsOption = 1,
     compile_loss: CompileOption = None,
+    ppo: PPOSettingsOption = None,
     eval_episodes: int = typer.Option(10, "--eval-episodes", min=1, max=limits.MAX_EPISODES,
                                       help="Episodes for the final evaluation (recorded; kept on --resume)."),
     resume: str = typer.Option(None, "--resume", help="Continue an interrupted transfer run."),
@@ -137,7 +140,7 @@ def transfer(
             run = start_transfer(
                 reg, to=to, method=method, teacher_refs=list(teacher or []), steps=steps, seed=seed,
                 command=command_line(), kl_coef=kl_coef, num_envs=num_envs, options=options,
-                compile_loss=compile_loss, eval_episodes=eval_episodes,
+                compile_loss=compile_loss, eval_episodes=eval_episodes, ppo_settings=parse_ppo_settings(ppo),
                 encoder_widths=list(encoder_width) if encoder_width else None,
                 hidden=parse_hidden(hidden) if hidden else None,
             )

@@ -13,6 +13,7 @@ from miktcli import compat
 from miktcli.errors import MiktError, describe_validation_error
 from miktcli.limits import open_regular
 from miktcli.methods import get_method, transfer_methods
+from miktcli.ppo import PPOConfig
 
 # A grid's size limits. Every cell is a run folder and a line of state.json and results.md; beyond these a
 # grid is a mistake (a seed range typed wrong), and preparing it would take minutes before any cell trains.
@@ -40,6 +41,8 @@ class MethodSpec(BaseModel):
     kl_coef: float | None = Field(None, ge=0, allow_inf_nan=False)
     # the method's options (`options = { mi = false }`), checked by the method's own options model
     options: dict[str, Any] = Field(default_factory=dict)
+    # PPO settings (`ppo = { clip_range = 0.1 }`), checked by PPOConfig: as `--ppo KEY=VALUE`
+    ppo: dict[str, Any] = Field(default_factory=dict)
 
     @model_validator(mode="before")
     @classmethod
@@ -58,6 +61,7 @@ class MethodSpec(BaseModel):
         # checked when the grid is read, so a bad option of one method creates no run of another
         try:
             get_method(self.method).parse_options(self.options)
+            PPOConfig.with_settings(self.ppo, kl_coef=self.kl_coef)
         except MiktError as err:
             raise ValueError(str(err)) from None
         return self

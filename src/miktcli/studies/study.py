@@ -19,6 +19,7 @@ from miktcli import compat
 from miktcli.envs.fingerprint import describe_change, spec_fingerprint
 from miktcli.envs.spec import load_spec
 from miktcli.errors import MiktError
+from miktcli.ppo import PPOConfig
 from miktcli.registry.cards import TeacherRef
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.locks import FileLock, lock_holder
@@ -51,6 +52,12 @@ def cell_mismatch(run: Run, pair: PairSpec, method: MethodSpec, seed: int, steps
     if card.total_steps not in (steps, rounded):
         whole = f" ({rounded:,} in whole rollouts of {card.config.ppo.batch_size:,})" if rounded != steps else ""
         return f"trains {card.total_steps:,} steps, the grid {steps:,}{whole}"
+    if method.ppo:  # each setting the grid gives, as the model reads it, against what the run recorded
+        wanted = PPOConfig.with_settings(method.ppo)
+        differs = [k for k in method.ppo if getattr(wanted, k) != getattr(card.config.ppo, k)]
+        if differs:
+            k = differs[0]
+            return f"trains with PPO {k} = {getattr(card.config.ppo, k)!r}, the grid asks {getattr(wanted, k)!r}"
     return None
 
 
@@ -287,6 +294,7 @@ class Study:
                 steps=self.grid.steps,
                 seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, options=method.options,
                 compile_loss=self.grid.compile_loss, eval_episodes=self.grid.eval_episodes,
+                ppo_settings=method.ppo,
             )
             self._remember(key, run.id, write=False)
             created = True

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from collections.abc import Generator
 from pathlib import Path
+from typing import Any
 
 from miktcli.compile_choice import decide_compile
 from miktcli.envs import load_spec
@@ -27,12 +28,15 @@ from miktcli.workflows.session import Event, Job, Phase, check_registry_writable
 
 
 def start_teacher(registry: Path, *, env: str, steps: int, seed: int, command: str, name: str | None = None,
-                  num_envs: int = 1, hidden: list[int] | None = None, compile_loss: bool | None = None) -> Run:
+                  num_envs: int = 1, hidden: list[int] | None = None, compile_loss: bool | None = None,
+                  ppo_settings: dict[str, Any] | None = None) -> Run:
     """Check everything, then create the run folder of a teacher (PPO from scratch on `env`).
     compile_loss: True/False as asked, None to decide from the run's size (compile_choice.py)."""
     sizes = hidden or [64, 64]
     compiled, reason = decide_compile(compile_loss, steps)
-    config = RunConfig(ppo=PPOConfig(num_envs=num_envs, compile_loss=compiled, compile_reason=reason),
+    ppo = PPOConfig.with_settings(dict(ppo_settings or {}), num_envs=None if num_envs == 1 else num_envs,
+                                  compile_loss=compiled, compile_reason=reason)
+    config = RunConfig(ppo=ppo,
                        pi_hidden=sizes, vf_hidden=sizes, teacher_name=check_name(env if name is None else name))
     return new_run(registry, kind="teacher", env=env, method="ppo", seed=seed, total_steps=steps, config=config,
                    command=command)

@@ -8,12 +8,11 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from pydantic import ValidationError
 
 from miktcli import limits
 from miktcli.compile_choice import decide_compile
 from miktcli.envs import load_spec
-from miktcli.errors import MiktError, TeacherMismatchError, describe_validation_error
+from miktcli.errors import MiktError, TeacherMismatchError
 from miktcli.evaluation import evaluation_summary
 from miktcli.limits import check_count
 from miktcli.methods import get_method
@@ -63,7 +62,7 @@ def start_transfer(
     registry: Path, *, to: str, method: str, teacher_refs: list[str], steps: int, seed: int, command: str,
     kl_coef: float | None = None, num_envs: int = 1, options: dict[str, Any] | None = None,
     encoder_widths: list[int] | None = None, hidden: list[int] | None = None, compile_loss: bool | None = None,
-    eval_episodes: int = 10,
+    eval_episodes: int = 10, ppo_settings: dict[str, Any] | None = None,
 ) -> Run:
     """Check everything a transfer needs, then create its run folder (not yet trained).
     compile_loss: True/False as asked, None to decide from the run's size (compile_choice.py)."""
@@ -85,11 +84,11 @@ def start_transfer(
     sizes = (check_teachers(teachers, encoder_widths if m.encoder_per_teacher else None, hidden) if teachers
              else (hidden or DEFAULT_HIDDEN, hidden or DEFAULT_HIDDEN))
     compiled, reason = decide_compile(compile_loss, steps)
-    try:
-        ppo = PPOConfig(num_envs=num_envs, kl_coef=m.default_kl_coef if kl_coef is None else kl_coef,
-                        compile_loss=compiled, compile_reason=reason)
-    except ValidationError as err:
-        raise MiktError(f"bad PPO setting: {describe_validation_error(err)}") from err
+    settings = dict(ppo_settings or {})
+    if kl_coef is None and "kl_coef" not in settings:
+        kl_coef = m.default_kl_coef
+    ppo = PPOConfig.with_settings(settings, num_envs=None if num_envs == 1 else num_envs, kl_coef=kl_coef,
+                                  compile_loss=compiled, compile_reason=reason)
     config = RunConfig(ppo=ppo, pi_hidden=sizes[0], vf_hidden=sizes[1],
                        options=None if parsed is None else parsed.model_dump(), eval_episodes=eval_episodes)
     return new_run(registry, kind="transfer", env=to, method=method, seed=seed, total_steps=steps, config=config,
