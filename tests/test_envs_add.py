@@ -122,7 +122,7 @@ def test_two_adds_of_one_name_at_once_leave_the_first_and_refuse_the_second(spec
 
     xml = ASSETS / "hopper.xml"
     if in_place:  # a model that loads a file outside its folder is not copied: only the spec file is written
-        monkeypatch.setattr(add_env, "_inside", lambda path, folder: False)
+        monkeypatch.setattr(add_env, "_relative", lambda path, folder: None)
     real = add_env.load_model
 
     def the_other_add_finishes_first(path):
@@ -136,3 +136,31 @@ def test_two_adds_of_one_name_at_once_leave_the_first_and_refuse_the_second(spec
     out = mikt("envs", "add", xml, "--name", "bot", code=1).output
     assert "exists already" in out
     assert (specs / "bot.toml").read_text() == "# the other add's spec\n"
+
+
+def test_the_copy_is_exact_sub_models_symlinks_and_absolute_paths(specs, tmp_path):
+    robot = tmp_path / "vendor"
+    robot.mkdir()
+    (robot / "leg.xml").write_text(
+        '<mujoco><worldbody><body name="thigh"><joint name="hip" type="hinge" axis="0 1 0"/>'
+        '<geom type="capsule" size="0.05" fromto="0 0 0 0 0 -0.3"/></body></worldbody>'
+        '<actuator><motor joint="hip" gear="10"/></actuator></mujoco>')
+    body = ('<geom type="plane" size="5 5 .1"/><body name="base" pos="0 0 0.5"><freejoint/>'
+            '<geom type="sphere" size="0.1"/><attach model="leg" body="thigh" prefix="l_"/></body>')
+    (robot / "bot.xml").write_text(f'<mujoco><asset><model name="leg" file="leg.xml"/></asset>'
+                                   f'<worldbody>{body}</worldbody></mujoco>')
+    r = mikt("envs", "add", robot / "bot.xml", "--name", "bot")  # a sub-model (MuJoCo's attach) goes along
+    assert "copied the XML and 1 file(s)" in r.output and (specs / "bot" / "leg.xml").is_file()
+
+    (robot / "parts").mkdir()
+    (robot / "leg.xml").rename(robot / "parts" / "real-leg.xml")
+    (robot / "leg.xml").symlink_to(robot / "parts" / "real-leg.xml")  # a link inside the folder
+    mikt("envs", "add", robot / "bot.xml", "--name", "linked")
+    assert (specs / "linked" / "leg.xml").read_text() == (robot / "parts" / "real-leg.xml").read_text()
+    mikt("envs", "show", "linked")
+
+    (robot / "abs.xml").write_text(f'<mujoco><asset><model name="leg" file="{robot / "leg.xml"}"/></asset>'
+                                   f'<worldbody>{body}</worldbody></mujoco>')
+    r = mikt("envs", "add", robot / "abs.xml", "--name", "absolute")
+    assert f"in place (it names {robot / 'leg.xml'} by an absolute path)" in r.output
+    assert not (specs / "absolute").exists()  # used in place: a copy would still read the original

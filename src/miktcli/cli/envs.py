@@ -118,7 +118,7 @@ def add(
         extra = f" and {len(added.files)} file(s) it loads" if added.files else ""
         err.print(f"copied the XML{extra} to {added.xml_path.parent}")
     else:
-        err.print(f"the spec uses {added.xml_path} in place (it loads files outside its folder): keep it there")
+        err.print(f"the spec uses {added.xml_path} in place ({added.why_in_place}): keep it there")
     healthy = "none" if spec.healthy_z_min is None else f"root height > {spec.healthy_z_min}"
     err.print(f"wrote {added.spec_path} (health check: {healthy}; edit the file to change any term)")
     print_data(added.spec_path)

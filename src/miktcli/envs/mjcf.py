@@ -87,7 +87,28 @@ def model_files(xml: Path) -> list[Path]:
         if path not in found:
             total += _model_file_size(path, total)
             found.append(path)
+    # sub-models (<asset><model file=…/>, placed with <attach>) and, recursively, what they load
+    for sub in _submodel_files(xml, base):
+        for path in [sub, *model_files(sub)]:
+            if path not in found:
+                total += _model_file_size(path, total)
+                found.append(path)
     return found
+
+
+def _model_elements(xml: Path) -> list[ET.Element]:
+    return list(ET.fromstring(limits.read_file_bounded(xml, str(xml), limits.MAX_MODEL_FILE_BYTES)).iter())
+
+
+def _submodel_files(xml: Path, base: Path) -> list[Path]:
+    return [base / node.get("file") for node in _model_elements(xml)
+            if node.tag == "model" and node.get("file")]
+
+
+def absolute_references(xml: Path) -> list[str]:
+    """The files the XML (not its includes) names by an absolute path."""
+    return [node.get("file") for node in _model_elements(xml)
+            if node.get("file") and Path(node.get("file")).is_absolute()]
 
 
 def _model_file_size(path: Path, total_before: int) -> int:

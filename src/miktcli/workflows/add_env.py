@@ -20,7 +20,7 @@ from pathlib import Path
 import mujoco
 
 from miktcli.envs.factory import env_dims, model_facts
-from miktcli.envs.mjcf import MjcfEnv, Root, body_name, find_root, load_model, model_files
+from miktcli.envs.mjcf import MjcfEnv, Root, absolute_references, body_name, find_root, load_model, model_files
 from miktcli.envs.spec import SPEC_NAME_RE, MjcfSpec, load_spec_file, spec_names, user_specs_dir
 from miktcli.errors import MiktError
 from miktcli.registry.files import write_bytes_atomic
@@ -39,14 +39,14 @@ class AddedEnv:
     files: list[str]  # files copied beside the XML (relative paths)
     root: str  # the chosen torso and its root joint, in words
     facts: dict
+    why_in_place: str = ""  # when not copied: what keeps the model from being copied
 
 
-def _inside(path: Path, folder: Path) -> bool:
-    try:
-        path.resolve().relative_to(folder.resolve())
-        return True
-    except ValueError:
-        return False
+def _relative(path: Path, folder: Path) -> Path | None:
+    """`path` relative to `folder` by name, symlinks not followed (the copy must hold each file under the name
+    the model uses), or None when it lies outside."""
+    relative = Path(os.path.relpath(os.path.abspath(path), os.path.abspath(folder)))
+    return None if relative.parts[:1] == ("..",) else relative
 
 
 def _toml_value(value) -> str:
@@ -102,7 +102,13 @@ def add_mjcf(xml: Path, name: str, torso: str | None = None, folder: Path | None
     except MiktError as err:
         raise MiktError(f"{xml}: {err}") from err
     referenced = model_files(xml)
-    copied = all(_inside(p, xml.parent) for p in referenced)
+    # A file the XML names by an absolute path would still be read from there by the copy: such a model, like
+    # one loading files from outside its folder, is used in place rather than copied.
+    absolute = absolute_references(xml)
+    outside = [p for p in referenced if _relative(p, xml.parent) is None]
+    copied = not absolute and not outside
+    why = (f"it names {absolute[0]} by an absolute path" if absolute
+           else f"it loads {outside[0]}, outside its folder" if outside else "")
 
     staging = folder / f".{name}.{os.getpid()}.tmp"
     try:
@@ -111,7 +117,7 @@ def add_mjcf(xml: Path, name: str, torso: str | None = None, folder: Path | None
             shutil.copy2(xml, staging / xml.name)
             files = []
             for path in referenced:
-                relative = path.resolve().relative_to(xml.parent.resolve())
+                relative = _relative(path, xml.parent)
                 (staging / relative).parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(path, staging / relative)
                 files.append(str(relative))
@@ -153,7 +159,7 @@ def add_mjcf(xml: Path, name: str, torso: str | None = None, folder: Path | None
     finally:
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)
-    return AddedEnv(spec, target_toml, spec.xml_path(), copied, files, root_words, facts)
+    return AddedEnv(spec, target_toml, spec.xml_path(), copied, files, root_words, facts, why)
 
 
 def _spec(name: str, xml: str, root: Root, model: mujoco.MjModel, torso: str | None, **fields) -> MjcfSpec:
