@@ -14,6 +14,8 @@ from typer.testing import CliRunner
 
 from miktcli.cli.app import app
 
+pytestmark = pytest.mark.slow  # process-level: `pytest -m "not slow"` skips this module
+
 ray = pytest.importorskip("ray")
 runner = CliRunner()
 GRID = """name = "raytiny"
@@ -24,8 +26,6 @@ eval_episodes = 1
 
 [[pairs]]
 from = ["tiny"]
-
-pytestmark = pytest.mark.slow  # process-level: `pytest -m "not slow"` skips this module
 to = "centipede-four"
 
 [[methods]]

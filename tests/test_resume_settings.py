@@ -44,7 +44,11 @@ def test_a_study_cell_records_the_grid_s_eval_episodes(registry):
     assert run.card.config.eval_episodes == 2
 
 
-def test_a_resume_may_change_the_update_mode_and_the_card_says_from_which_step(registry, ctrl_c_at_second_update):
+def test_a_resume_may_change_the_update_mode_and_the_card_says_from_which_step(registry, ctrl_c_at_second_update,
+                                                                              monkeypatch):
+    from miktcli import ppo
+
+    monkeypatch.setattr(ppo, "compiled", lambda loss: loss)  # what is recorded is tested here, not torch.compile
     mikt("teacher", "train", "hopper", "--steps", 6144, "--no-compile", code=1)  # interrupted at 2,048
     ctrl_c_at_second_update()
     mikt("teacher", "train", "--resume", "run1", "--compile")

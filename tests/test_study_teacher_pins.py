@@ -121,6 +121,8 @@ def test_the_cli_says_what_it_pinned(teacher_v1, tmp_path):
 def test_an_import_that_shadows_a_teacher_says_so(registry):
     assert runner.invoke(app, ["teacher", "train", "hopper", "--steps", "2048"]).exit_code == 0  # hopper@v1
     r = runner.invoke(app, ["teacher", "import", str(FIXTURE), "--env", "hopper"])  # the name defaults to the env
+    assert r.exit_code == 1 and "teacher 'hopper' exists already (hopper@v1" in r.output  # never silently
+    r = runner.invoke(app, ["teacher", "import", str(FIXTURE), "--env", "hopper", "--name", "hopper"])  # on purpose
     assert r.exit_code == 0 and r.stdout.strip() == "hopper@v2", r.output
     assert ("warning: hopper@v2 (imported from sb3) is now what `hopper` means, in place of hopper@v1 "
             "(trained by mikt, 2,048 steps)") in r.output

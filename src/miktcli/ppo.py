@@ -220,8 +220,8 @@ def compiled(loss: Callable[..., Any]) -> Callable[..., Any]:
             return fast(*args)
         except (torch._dynamo.exc.TorchDynamoException, torch._dynamo.exc.FailOnRecompileLimitHit) as err:
             reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-            raise MiktError(f"compile_loss: torch.compile failed ({reason})",
-                            hint="train with the eager update: --no-compile (a resume takes it too)") from err
+            raise MiktError(f"compile_loss: torch.compile failed ({reason}); train without --compile: "
+                            "--no-compile (a resume takes it too)") from err
 
     return call
 
