@@ -266,3 +266,16 @@ def test_student_weight_ramp_pushes_only_layers_below_the_schedule():
     assert agent.evaluate_actions(obs)[2]["loss_coupling"].item() == pytest.approx(expected, rel=1e-5)
     with pytest.raises(ValueError, match="constant schedule has none"):
         MiktConfig(coupling_ramp="student-weight", coupling_schedule="constant")
+
+
+def test_the_q_log_std_clamp_can_be_turned_off_as_in_the_authors_and_cat_s_code():
+    torch.manual_seed(0)
+    agent = MiktActorCritic(139, 16, [frozen_teacher(97, 10)], MiktConfig(mi_log_std_clamp=False))
+    decoder = agent.decoders[0]
+    with torch.no_grad():
+        decoder.log_std.fill_(-9.0)
+    obs, emb = torch.zeros(4, 139), torch.zeros(4, 97)
+    unclamped = decoder.neg_log_prob(obs, emb)
+    clamped = MiktActorCritic(139, 16, [frozen_teacher(97, 10)], MiktConfig()).decoders[0]
+    clamped.load_state_dict(decoder.state_dict())
+    assert not torch.allclose(unclamped, clamped.neg_log_prob(obs, emb))

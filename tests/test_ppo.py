@@ -165,3 +165,16 @@ def test_the_trainer_sets_torch_s_threads_as_its_config_records():
     finally:
         torch.set_num_threads(1)
     assert PPOConfig.from_record({}).torch_threads == 1  # older cards trained with the CLI's one thread
+
+
+def test_cat_s_value_loss_is_there_by_name_with_its_zero_target():
+    t = trainer(value_loss="cat-zero-target")
+    batch = t._values_and_targets(t.collect()[0])
+    mb = batch.take(slice(0, 64))
+    _, logs = t.loss(mb, t.agent.log_std.detach())
+    with torch.no_grad():
+        value = t.agent.value(mb.obs)
+        clipped = mb.values + (value - mb.values).clamp(-0.2, 0.2)
+        expected = 0.5 * torch.max(value.square(), (clipped - mb.returns).square()).mean()
+    torch.testing.assert_close(logs["loss_value"], expected)
+    assert PPOConfig().value_loss == "ppo2"

@@ -49,9 +49,11 @@ class PPOConfig(BaseModel):
     vf_coef: float = 0.5
     max_grad_norm: float = 0.5
     clip_value_loss: bool = Field(True, description="clip the value prediction's change, same range as the policy")
-    value_loss: Literal["ppo2", "sb3"] = Field(
+    value_loss: Literal["ppo2", "sb3", "cat-zero-target"] = Field(
         "ppo2", description="ppo2 (the authors'): 0.5·max(unclipped², clipped²); sb3: the clipped prediction's "
-        "squared error alone, no 0.5 (both then weighted by vf_coef)")
+        "squared error alone, no 0.5 (both then weighted by vf_coef). cat-zero-target: CAT's committed code "
+        "(ppo2/model.py: vf_losses1 = square(vpred - 0)), 0.5·max(V², (V_clipped − R)²), whose unclipped "
+        "term has the target 0: a bug that shrinks the value head; only to reproduce CAT's runs, never a default")
     normalize_advantage: bool = Field(True, description="per minibatch")
     obs_normalization: bool = Field(True, description="running mean/std, updated every step, clip ±10")
     reward_scaling: bool = Field(True, description="divide by running std of the discounted return")
@@ -407,15 +409,17 @@ class PPOTrainer:
             mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
         pg_loss = torch.max(-mb_adv * ratio, -mb_adv * ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range)).mean()
         v_error = (value - mb.returns).square()
+        if cfg.value_loss == "cat-zero-target":  # CAT's target-less unclipped term (see PPOConfig)
+            v_error = value.square()
         if cfg.clip_value_loss:
             v_clipped = mb.values + (value - mb.values).clamp(-cfg.clip_range, cfg.clip_range)
             v_clipped_error = (v_clipped - mb.returns).square()
-            if cfg.value_loss == "ppo2":
+            if cfg.value_loss in ("ppo2", "cat-zero-target"):
                 v_loss = 0.5 * torch.max(v_error, v_clipped_error).mean()
             else:  # SB3: with clip_range_vf set, only the clipped prediction's error, and no 0.5
                 v_loss = v_clipped_error.mean()
         else:
-            v_loss = (0.5 if cfg.value_loss == "ppo2" else 1.0) * v_error.mean()
+            v_loss = (1.0 if cfg.value_loss == "sb3" else 0.5) * v_error.mean()
         terms = {"loss_policy": pg_loss, "loss_value_weighted": cfg.vf_coef * v_loss}
         if cfg.ent_coef:
             entropy = (agent.log_std + 0.5 * (1.0 + np.log(2 * np.pi))).sum()

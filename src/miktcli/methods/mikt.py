@@ -57,6 +57,8 @@ class MiktConfig(BaseModel):
     mi: bool = Field(True, description="train the encoder with L_MI (off: the 'w/o MI' ablation)")
     mi_coef: float = Field(0.5, ge=0)
     mi_log_std_min: float = Field(-5.0, description="clamp of q's log-std; constant obs dims make L_MI unbounded")
+    mi_log_std_clamp: bool = Field(True, description="clamp q's log-std at mi_log_std_min (ours). Off: no clamp, "
+                                   "as in the authors' and CAT's code, where it drifts to about −9")
     rl_encoder_grad: bool = Field(True, description="PPO gradient into φ (off: 'w/o RL gradients' ablation)")
     ramp_start: float = Field(0.45, ge=0, le=1, description="fraction of training where the coupling ramp starts")
     drop_teacher_at: float = Field(0.90, ge=0, le=1, description="fraction where the ramp ends, teacher dropped")
@@ -130,7 +132,7 @@ class MiktConfig(BaseModel):
 class GaussianDecoder(nn.Module):
     """q_ω(s | e): diagonal Gaussian, mean = MLP(e), state-independent learned log-std (clamped)."""
 
-    def __init__(self, emb_dim: int, obs_dim: int, hidden: list[int], log_std_min: float):
+    def __init__(self, emb_dim: int, obs_dim: int, hidden: list[int], log_std_min: float | None):
         super().__init__()
         self.mean = MLP(emb_dim, hidden, obs_dim, out_gain=AUTHORS_OUTPUT_GAIN)
         self.log_std = nn.Parameter(torch.zeros(obs_dim))
@@ -142,7 +144,7 @@ class GaussianDecoder(nn.Module):
         The mean over dimensions (and, in the caller, over the batch) is the authors' own choice (their
         `reduce_mean`), not a departure; it also keeps L_MI's scale independent of the target's size (97…181
         dims). The clamp of the log-std is ours: constant observation entries otherwise drive it to −∞."""
-        log_std = self.log_std.clamp(min=self.log_std_min)
+        log_std = self.log_std.clamp(min=self.log_std_min) if self.log_std_min is not None else self.log_std
         z = (target - self.mean(emb)) * torch.exp(-log_std)
         return (0.5 * z.square() + log_std + 0.5 * LOG_2PI).mean(-1)
 
@@ -167,7 +169,8 @@ class MiktActorCritic(ActorCritic):
         self.encoders = nn.ModuleList(
             MLP(obs_dim, [64, 64], t.pi.in_features, out_gain=AUTHORS_OUTPUT_GAIN) for t in teachers)
         self.decoders = nn.ModuleList(
-            GaussianDecoder(t.pi.in_features, obs_dim, [64, 64], config.mi_log_std_min) for t in teachers
+            GaussianDecoder(t.pi.in_features, obs_dim, [64, 64],
+                            config.mi_log_std_min if config.mi_log_std_clamp else None) for t in teachers
         )
         init = [STUDENT_LOGIT_INIT] + [TEACHER_LOGIT_INIT] * mixed_sources(len(teachers), config.mixing)
         self.mix_logits_pi = nn.Parameter(torch.tensor([init] * len(pi_hidden)))
