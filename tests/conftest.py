@@ -44,3 +44,12 @@ def pythons_ctrl_c():
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     yield
     signal.signal(signal.SIGINT, previous)
+
+
+@pytest.fixture()
+def specs(tmp_path, monkeypatch):
+    """An empty spec folder of the test's own ($MIKT_ENVSPECS): where `mikt envs add` writes."""
+    folder = tmp_path / "specs"
+    folder.mkdir()
+    monkeypatch.setenv("MIKT_ENVSPECS", str(folder))
+    return folder

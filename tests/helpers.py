@@ -110,3 +110,17 @@ def fake_run(registry, env, method, seed, curve, eval_return, mixing=None, teach
         result["final_mixing_learned"] = mixing
     run.save_card(status="completed", steps_done=2048 * len(curve), result=result)
     return run.id
+
+
+def robot_with_mesh_and_include(folder):
+    """An MJCF robot that loads a mesh (a one-tetrahedron OBJ) and includes a file holding its actuator."""
+    (folder / "meshes").mkdir(parents=True)
+    (folder / "meshes" / "foot.obj").write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\n"
+                                                "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    (folder / "motors.xml").write_text('<mujoco><actuator><motor joint="hip" gear="10"/></actuator></mujoco>')
+    (folder / "bot.xml").write_text(
+        '<mujoco><compiler meshdir="meshes"/><asset><mesh name="foot" file="foot.obj"/></asset><worldbody>'
+        '<geom type="plane" size="5 5 .1"/><body name="base" pos="0 0 0.5"><freejoint/>'
+        '<geom type="sphere" size="0.1"/><body name="leg"><joint name="hip" type="hinge" axis="0 1 0"/>'
+        '<geom type="mesh" mesh="foot"/></body></body></worldbody><include file="motors.xml"/></mujoco>')
+    return folder / "bot.xml"

@@ -9,17 +9,11 @@ from pathlib import Path
 import gymnasium as gym
 import pytest
 
-from helpers import mikt
+from helpers import mikt, robot_with_mesh_and_include
 
 ASSETS = Path(gym.__file__).parent / "envs" / "mujoco" / "assets"
 
 
-@pytest.fixture()
-def specs(tmp_path, monkeypatch):
-    folder = tmp_path / "specs"
-    folder.mkdir()
-    monkeypatch.setenv("MIKT_ENVSPECS", str(folder))
-    return folder
 
 
 def test_walker2d_from_gymnasium_xml_is_added_and_trained_from_the_packaged_hopper(specs, registry, monkeypatch,
@@ -53,16 +47,7 @@ def test_walker2d_from_gymnasium_xml_is_added_and_trained_from_the_packaged_hopp
 
 def test_an_xml_with_meshes_and_includes_is_copied_with_them(specs, tmp_path):
     robot = tmp_path / "vendor"
-    (robot / "meshes").mkdir(parents=True)
-    # a one-tetrahedron mesh (Wavefront OBJ) and an included file holding the actuator
-    (robot / "meshes" / "foot.obj").write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\n"
-                                               "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
-    (robot / "motors.xml").write_text('<mujoco><actuator><motor joint="hip" gear="10"/></actuator></mujoco>')
-    (robot / "bot.xml").write_text(
-        '<mujoco><compiler meshdir="meshes"/><asset><mesh name="foot" file="foot.obj"/></asset><worldbody>'
-        '<geom type="plane" size="5 5 .1"/><body name="base" pos="0 0 0.5"><freejoint/>'
-        '<geom type="sphere" size="0.1"/><body name="leg"><joint name="hip" type="hinge" axis="0 1 0"/>'
-        '<geom type="mesh" mesh="foot"/></body></body></worldbody><include file="motors.xml"/></mujoco>')
+    robot_with_mesh_and_include(robot)
     r = mikt("envs", "add", robot / "bot.xml", "--name", "bot")
     assert "copied the XML and 2 file(s)" in r.output
     assert (specs / "bot" / "meshes" / "foot.obj").is_file() and (specs / "bot" / "motors.xml").is_file()

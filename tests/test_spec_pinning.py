@@ -14,10 +14,7 @@ ASSETS = Path(gym.__file__).parent / "envs" / "mujoco" / "assets"
 
 
 @pytest.fixture()
-def my_hopper(tmp_path, monkeypatch):
-    specs = tmp_path / "specs"
-    specs.mkdir()
-    monkeypatch.setenv("MIKT_ENVSPECS", str(specs))
+def my_hopper(specs):
     mikt("envs", "add", ASSETS / "hopper.xml", "--name", "my-hopper")
     return specs
 

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from helpers import mikt
+from helpers import mikt, robot_with_mesh_and_include
 
 
 def run_cli(*args, registry, timeout=60):
@@ -73,19 +73,6 @@ def test_a_metrics_line_or_file_past_its_limit_is_refused(finished_run, monkeypa
     monkeypatch.setattr(limits, "MAX_METRICS_BYTES", 100)
     with pytest.raises(MiktError, match="more than the 100 bytes"):
         run.read_metrics()
-
-
-def robot_with_mesh_and_include(folder):
-    (folder / "meshes").mkdir(parents=True)
-    (folder / "meshes" / "foot.obj").write_text("v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\n"
-                                                "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
-    (folder / "motors.xml").write_text('<mujoco><actuator><motor joint="hip" gear="10"/></actuator></mujoco>')
-    (folder / "bot.xml").write_text(
-        '<mujoco><compiler meshdir="meshes"/><asset><mesh name="foot" file="foot.obj"/></asset><worldbody>'
-        '<geom type="plane" size="5 5 .1"/><body name="base" pos="0 0 0.5"><freejoint/>'
-        '<geom type="sphere" size="0.1"/><body name="leg"><joint name="hip" type="hinge" axis="0 1 0"/>'
-        '<geom type="mesh" mesh="foot"/></body></body></worldbody><include file="motors.xml"/></mujoco>')
-    return folder / "bot.xml"
 
 
 @pytest.mark.parametrize("victim", ["motors.xml", "meshes/foot.obj"])
