@@ -39,3 +39,22 @@ def test_the_check_creates_nothing_and_the_write_makes_the_folders(tmp_path):
 def test_a_folder_is_not_an_output_file(tmp_path):
     with pytest.raises(MiktError, match="is a folder"):
         prepare_output(tmp_path)
+
+
+@pytest.mark.parametrize("free, message", [(0, "No space left on device"),
+                                           (10**12, "the video encoder (ffmpeg) stopped")])
+def test_a_video_whose_encoder_stops_is_one_line_and_leaves_nothing(tmp_path, monkeypatch, free, message):
+    import shutil
+    from collections import namedtuple
+
+    from miktcli import outfiles
+    from miktcli.errors import MiktError
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(1, 1, free))
+    target = tmp_path / "v.mp4"
+    with pytest.raises(MiktError) as caught:
+        with outfiles.atomic_output(target, ".mp4"):
+            raise OSError("[Errno 32] Broken pipe\n\nFFMPEG COMMAND:\nffmpeg -y …\n\nFFMPEG STDERR OUTPUT:\n")
+    assert str(caught.value) == f"could not write {target}: {message}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

@@ -3,12 +3,15 @@ written whole or not at all."""
 
 from __future__ import annotations
 
+import shutil
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
 from miktcli.errors import MiktError
+
+FULL_DISK_BYTES = 1024 * 1024  # less free space than this beside a failed video: the disk filled up
 
 
 def prepare_output(path: Path) -> Path:
@@ -44,9 +47,16 @@ def atomic_output(path: Path, suffix: str) -> Iterator[Path]:
         tmp.replace(path)
     except (OSError, RuntimeError, ValueError) as err:  # encoders (ffmpeg, png) fail with these
         tmp.unlink(missing_ok=True)
+        if isinstance(err, BrokenPipeError) or "Broken pipe" in str(err):
+            # an encoder process (ffmpeg) that stopped: most often because the disk filled up under it
+            full = shutil.disk_usage(path.parent).free < FULL_DISK_BYTES
+            raise MiktError(f"could not write {path}: " + ("No space left on device" if full else
+                                                           "the video encoder (ffmpeg) stopped"),
+                            hint="free some space and run again" if full else None) from None
         if isinstance(err, OSError) and err.strerror:
             raise  # the CLI names permissions, full disks and the like itself
-        raise MiktError(f"could not write {path}: {type(err).__name__}: {err}") from err
+        first = str(err).strip().splitlines()[0] if str(err).strip() else ""  # encoders add pages of detail
+        raise MiktError(f"could not write {path}: {type(err).__name__}: {first}") from err
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

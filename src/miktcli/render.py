@@ -45,8 +45,10 @@ def save_png(frame: np.ndarray, path: Path) -> Path:
 def save_mp4(frames: Iterable[np.ndarray], path: Path, fps: int) -> Path:
     import imageio.v2 as imageio
 
+    # ffmpeg itself stays quiet (its lines would follow our one-line error); a failure is told by the writer
     with atomic_output(path, ".mp4") as tmp, imageio.get_writer(tmp, fps=fps, codec="libx264",
-                                                                 macro_block_size=16) as writer:
+                                                                 macro_block_size=16,
+                                                                 ffmpeg_log_level="quiet") as writer:
         for frame in frames:
             writer.append_data(frame)
     return Path(path)
