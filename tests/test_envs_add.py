@@ -149,3 +149,19 @@ def test_the_copy_is_exact_sub_models_symlinks_and_absolute_paths(specs, tmp_pat
     r = mikt("envs", "add", robot / "abs.xml", "--name", "absolute")
     assert f"in place (it names {robot / 'leg.xml'} by an absolute path)" in r.output
     assert not (specs / "absolute").exists()  # used in place: a copy would still read the original
+
+
+def test_a_model_mujoco_cannot_simulate_is_refused_at_add_time(specs, tmp_path):
+    # a collision pass larger than the model's arena: every later command (render, train, eval) would die in
+    # MuJoCo's mj_stackAlloc; 200 overlapping spheres in 64 KB do it quickly (20,000 bodies do it by default)
+    spheres = "".join(f'<body pos="{i % 20 * 0.01} {i // 20 * 0.01} 0"><geom type="sphere" size="0.001"/></body>'
+                      for i in range(200))
+    xml = tmp_path / "crowded.xml"
+    xml.write_text('<mujoco><size memory="64K"/><worldbody><geom type="plane" size="5 5 .1"/>'
+                   '<body name="torso" pos="0 0 1"><freejoint/><geom type="sphere" size="0.1"/>'
+                   '<body name="leg"><joint name="hip" type="hinge"/>'
+                   '<geom type="capsule" size="0.02" fromto="0 0 0 0 0 -0.3"/></body>' + spheres +
+                   '</body></worldbody><actuator><motor joint="hip"/></actuator></mujoco>')
+    out = mikt("envs", "add", xml, "--name", "crowded", code=1).output
+    assert "MuJoCo cannot simulate the model: mj_stackAlloc" in out and "<size memory" in out
+    assert not list(specs.iterdir())

@@ -85,9 +85,14 @@ def render(
     from miktcli.render import render_frame, save_png
 
     prepare_output(out_path)
+    from miktcli.envs.failures import env_failure
+
     env = make_env(name, render_mode="rgb_array")
     try:
-        env.reset(seed=seed)
+        try:
+            env.reset(seed=seed)
+        except Exception as error:  # noqa: BLE001 - the env's own code (MuJoCo's FatalError too): name its spec
+            raise env_failure(env, error, "reset") from error
         frame = render_frame(env)
     finally:
         env.close()

@@ -18,7 +18,7 @@ def env_failure(env: Any, err: Exception, during: str) -> MiktError:
     """A one-line error naming the spec an env was built from and what it raised."""
     name = getattr(getattr(env, "unwrapped", env), _NAME_ATTR, None)
     what = f"environment '{name}'" if name else "the environment"
-    message = str(err).splitlines()[0] if str(err) else ""
+    message = str(err).splitlines()[0] if str(err) else ""  # MuJoCo's FatalError: its first line says it all
     return MiktError(f"{what} failed in {during}: {type(err).__name__}" + (f": {message}" if message else ""),
                      hint=f"check its spec (mikt envs show {name}): kwargs can break only when the env runs"
                      if name else "check the environment's spec file")

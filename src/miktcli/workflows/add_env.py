@@ -42,6 +42,20 @@ class AddedEnv:
     why_in_place: str = ""  # when not copied: what keeps the model from being copied
 
 
+def check_simulates(env: MjcfEnv, xml: Path) -> None:
+    """Reset the env and step it once, so that a model MuJoCo cannot simulate (its arena too small for its
+    collision pass, say) is refused here in one line, not by every later command."""
+    import numpy as np
+
+    try:
+        env.reset(seed=0)
+        env.step(np.zeros(env.action_space.shape))
+    except mujoco.FatalError as err:
+        env.close()
+        raise MiktError(f"{xml}: MuJoCo cannot simulate the model: {str(err).splitlines()[0]}",
+                        hint="raise MuJoCo's memory for it (<size memory=\"…\"/>), or simplify the model") from None
+
+
 def _relative(path: Path, folder: Path) -> Path | None:
     """`path` relative to `folder` by name, symlinks not followed (the copy must hold each file under the name
     the model uses), or None when it lies outside."""
@@ -125,6 +139,7 @@ def add_mjcf(xml: Path, name: str, torso: str | None = None, folder: Path | None
         else:
             files, xml_field, built_from = [], str(xml.resolve()), xml.resolve()
         env = MjcfEnv(_spec(name, str(built_from), root, model, torso, obs_dim=1, act_dim=model.nu))
+        check_simulates(env, xml)  # what every later command does first: reset and step
         obs_dim, act_dim = env_dims(env)
         facts = model_facts(env)
         root_words = env.root.describe(env.model)
