@@ -45,7 +45,7 @@ def hand_over(agent, obs):
     """Train-like sequence: a rollout before the drop, then the schedule crosses it."""
     agent.set_progress(0.85)
     with torch.no_grad():
-        agent.observe_rollout(obs)
+        agent.observe_rollout(obs, 0.9)
     agent.set_progress(0.9)
     assert not agent.teacher_active
 
@@ -91,7 +91,7 @@ def test_a_restored_schedule_does_not_fold_again_and_a_resume_before_the_drop_fo
     live = trained_like_agent("fold-linear")
     live.set_progress(0.85)
     with torch.no_grad():
-        live.observe_rollout(obs)
+        live.observe_rollout(obs, 0.9)
     checkpoint = {k: v.clone() for k, v in live.state_dict().items()}  # holds the fold statistics
     live.set_progress(0.9)
 

@@ -76,9 +76,10 @@ class ActorCritic(nn.Module):
         load with the module's initial values."""
         return set()
 
-    def observe_rollout(self, obs: torch.Tensor) -> None:
+    def observe_rollout(self, obs: torch.Tensor, next_fraction: float) -> None:
         """Called once per iteration, after the update and without gradients, with the rollout's normalised
-        observations: a module may keep running statistics of them (as buffers, so checkpoints hold them)."""
+        observations and the fraction of training the next iteration starts at: a module may keep running
+        statistics of them (as buffers, so checkpoints hold them)."""
 
     def diagnostics(self) -> dict[str, float]:
         """Scalars worth logging every iteration (e.g. mixing weights)."""

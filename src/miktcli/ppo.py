@@ -408,9 +408,8 @@ class PPOTrainer:
         if cfg.normalize_advantage and mb_adv.numel() > 1:
             mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
         pg_loss = torch.max(-mb_adv * ratio, -mb_adv * ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range)).mean()
-        v_error = (value - mb.returns).square()
-        if cfg.value_loss == "cat-zero-target":  # CAT's target-less unclipped term (see PPOConfig)
-            v_error = value.square()
+        # CAT's unclipped term has no target (see PPOConfig.value_loss)
+        v_error = value.square() if cfg.value_loss == "cat-zero-target" else (value - mb.returns).square()
         if cfg.clip_value_loss:
             v_clipped = mb.values + (value - mb.values).clamp(-cfg.clip_range, cfg.clip_range)
             v_clipped_error = (v_clipped - mb.returns).square()
@@ -486,7 +485,7 @@ class PPOTrainer:
                 batch = self._values_and_targets(rollout)
                 losses = self.update(batch)
                 with torch.no_grad():
-                    self.agent.observe_rollout(batch.obs)
+                    self.agent.observe_rollout(batch.obs, (self.iteration + 1) / self.num_iterations)
             t_total = time.perf_counter() - t_start
             self.iteration += 1
             self.global_step += cfg.batch_size

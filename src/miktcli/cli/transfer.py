@@ -67,7 +67,7 @@ def flag_hint(error: MiktError) -> str | None:
     return None
 
 
-def start_branch(ctx: typer.Context, registry, source: str | None, at: str | None, method: str):
+def start_branch(ctx: typer.Context, registry, source: str | None, at: str | None):
     from miktcli.methods import get_method
     from miktcli.registry.runs import open_run
     from miktcli.workflows.branch import branch_run
@@ -120,7 +120,7 @@ def transfer(
     reg = registry
     if branch or at or resume:
         if branch or at:
-            run = start_branch(ctx, reg, branch, at, method)
+            run = start_branch(ctx, reg, branch, at)
         else:
             refuse_options_with_resume(ctx)
             run = open_resumable(reg, resume, "transfer")

@@ -184,8 +184,8 @@ class MiktActorCritic(ActorCritic):
         self.coupling_scale, self.coupling_on = 1.0, True
         self.distilling = False
         self._fraction: float | None = None  # the schedule's last position (None: not placed yet)
-        # Kept by every three-phase run, whatever its hand-over, so that a fold can be tried later from any of
-        # its checkpoints before the drop (mikt transfer --branch); a few ms per iteration.
+        # Kept by every three-phase run, whatever its hand-over, so that a fold can be tried later from its
+        # checkpoints before the drop (mikt transfer --branch); gathered only over the rollouts just before it.
         self.keeps_fold_statistics = config.coupling_schedule == "three-phase"
         if self.keeps_fold_statistics:
             self._register_fold_statistics()
@@ -258,9 +258,12 @@ class MiktActorCritic(ActorCritic):
             x = torch.tanh(weights[j, 0] * F.linear(x, w, b) + c)
         return terms
 
-    def observe_rollout(self, obs: torch.Tensor) -> None:
-        """Running statistics of the teachers' contribution at every layer (for the fold at the drop)."""
-        if not (self.keeps_fold_statistics and self.teacher_active):
+    def observe_rollout(self, obs: torch.Tensor, next_fraction: float) -> None:
+        """Running statistics of the teachers' contribution at every layer, for the fold at the drop: over the
+        rollouts of the hand-over window and the last one before the drop. With a half-life of one rollout,
+        earlier ones would weigh nothing by then, so they are not gathered (the update loop is hot)."""
+        if not (self.keeps_fold_statistics and self.teacher_active
+                and self.config.phase(next_fraction) in (HANDOVER_WINDOW, TEACHER_FREE)):
             return
         embs = self.embeddings(obs)
         w_pi, w_vf = self.mixing_weights()
