@@ -51,7 +51,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # in process at study settings (centipede-eight, compiled update): PPO from scratch, one and two teachers
 STUDY_RUNS = {"ppo": None, "mikt_1": ["centipede-six"], "mikt_2": ["centipede-four", "centipede-six"]}
 TARGETS = {"rollout_vs_physics": 0.70, "ppo_vs_sb3": 2.5, "teacher_vs_sb3_script": 2.5,
-           "one_teacher_vs_ppo": 1.25, "two_teachers_vs_ppo": 1.5}
+           "one_teacher_vs_ppo": 1.25, "two_teachers_vs_ppo": 1.5, "seeds_together_vs_separate": 1.6}
 
 
 def best_time(fn: Callable[[], object], number: int, repeats: int) -> float:
@@ -205,6 +205,33 @@ def process_commands(steps_teacher: int, steps_transfer: int) -> dict[str, list[
     }
 
 
+def seeds_together(steps: int, seeds: int, repeats: int, env: dict[str, str]) -> dict:
+    """A study cell whole process: `seeds` seeds of a two-teacher transfer (four + six → eight, the grid's 10
+    evaluation episodes) in one process (`--seeds`), against one process per seed run one after another.
+    Best of `repeats` for each side, the sides alternated."""
+    py = sys.executable
+    cell = [py, "-m", "miktcli", "transfer", "--from", "centipede-four", "--from", "centipede-six", "--to",
+            "centipede-eight", "--steps", str(steps)]
+    together, separate = [], []
+    for _ in range(repeats):
+        together.append(whole_process({"cell": [*cell, "--seeds", f"0-{seeds - 1}"]}, 1, env)["cell"]["wall_s"])
+        each = whole_process({f"seed {s}": [*cell, "--seed", str(s)] for s in range(seeds)}, 1, env)
+        separate.append(sum(r["wall_s"] for r in each.values()))
+    return {"seeds": seeds, "steps_per_seed": steps,
+            "command_together": shlex.join([*cell[1:], "--seeds", f"0-{seeds - 1}"]),
+            "command_separate": shlex.join([*cell[1:], "--seed", "S"]),
+            "together_s": min(together), "separate_s": min(separate), "all_together_s": together,
+            "all_separate_s": separate}
+
+
+def seeds_together_markdown(res: dict) -> list[str]:
+    st = res["seeds_together"]
+    return [f"| a study cell, whole process: {st['seeds']} seeds × {fmt(st['steps_per_seed'])} steps of a two-teacher "
+            f"transfer (four + six → eight) in one process (`--seeds`) vs {st['seeds']} processes one after another "
+            f"| {st['together_s']:.1f} s | {st['separate_s']:.1f} s | "
+            f"{res['ratios']['seeds_together_vs_separate']:.2f}× faster | ≥ {TARGETS['seeds_together_vs_separate']}× |"]
+
+
 # --- 4. pieces --------------------------------------------------------------------------------------------
 def env_pieces(number: int, repeats: int) -> dict:
     out = {}
@@ -300,6 +327,8 @@ def ratios(res: dict) -> dict:
         base = wp["ppo_from_scratch_eight"]["wall_s"]
         r["one_teacher_vs_ppo"] = wp["one_teacher_six_to_eight"]["wall_s"] / base
         r["two_teachers_vs_ppo"] = wp["two_teachers_four_six_to_eight"]["wall_s"] / base
+    if "seeds_together" in res:
+        r["seeds_together_vs_separate"] = res["seeds_together"]["separate_s"] / res["seeds_together"]["together_s"]
     study = res.get("study_speed")
     if study:
         for name in ("mikt_1", "mikt_2"):
@@ -352,6 +381,9 @@ def markdown(res: dict) -> str:
             f"{wp['two_teachers_four_six_to_eight']['wall_s']:.1f} s | {base:.1f} s | "
             f"{r['two_teachers_vs_ppo']:.2f}× the time | ≤ {TARGETS['two_teachers_vs_ppo']}× |",
         ]
+    if "seeds_together" in res:
+        lines += seeds_together_markdown(res)
+    if wp:
         lines += ["", f"The whole-process runs are below {AUTO_MIN_STEPS:,} steps, so their update is eager (auto); "
                   "each command's stderr names the path and its card records it."]
     study = res.get("study_speed")
@@ -432,6 +464,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results",
                         help="folder for throughput.json and throughput.md")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--only", choices=["seeds-together"], default=None,
+                        help="measure one part alone (written to throughput-PART.json/.md beside the full run's)")
     args = parser.parse_args(argv)
     quick = args.quick
     repeats = args.repeats or (1 if quick else 2)
@@ -448,6 +482,8 @@ def main(argv: list[str] | None = None) -> dict:
                  "python": sys.version.split()[0], "torch": torch.__version__, "repeats": repeats, "quick": quick,
                  "steps_teacher": steps_teacher, "steps_transfer": steps_transfer}
     t_start = time.perf_counter()
+    if args.only:
+        return only_seeds_together(res, args, repeats, 2048 if quick else 20480, t_start)
     res["physics_ant_us"] = physics_us("ant", number * 2, repeats + 2)
     res["physics_replay_ant_us"] = min(physics_replay_us(steps, args.seed) for _ in range(repeats))
     runs: dict[str, list[dict]] = {"engine": [], "sb3": []} | ({} if quick else {"engine_compiled": []})
@@ -467,10 +503,9 @@ def main(argv: list[str] | None = None) -> dict:
                      "update": update_pieces(repeats * 3, compiled=not quick)}
     if not args.no_whole_process:
         with tempfile.TemporaryDirectory() as registry:
-            shutil.copytree(ROOT / "registry" / "teachers", Path(registry) / "teachers")
-            env = {**os.environ, "MIKT_REGISTRY": registry,
-                   "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])}
+            env = process_env(registry)
             res["whole_process"] = whole_process(process_commands(steps_teacher, steps_transfer), repeats, env)
+            res["seeds_together"] = seeds_together(steps_transfer, 2 if quick else 5, repeats, env)
     res["ratios"] = ratios(res)
     res["wall_s"] = time.perf_counter() - t_start
     args.out.mkdir(parents=True, exist_ok=True)
@@ -479,6 +514,33 @@ def main(argv: list[str] | None = None) -> dict:
     (args.out / "throughput.md").write_text(page)
     print(page)
     print(f"({res['wall_s']:.0f} s; wrote {args.out / 'throughput.json'} and {args.out / 'throughput.md'})")
+    return res
+
+
+def process_env(registry: str) -> dict[str, str]:
+    """Subprocesses on a registry of their own holding the packaged teachers, running this checkout's code."""
+    shutil.copytree(ROOT / "registry" / "teachers", Path(registry) / "teachers")
+    return {**os.environ, "MIKT_REGISTRY": registry,
+            "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])}
+
+
+def only_seeds_together(res: dict, args: argparse.Namespace, repeats: int, steps: int, t_start: float) -> dict:
+    with tempfile.TemporaryDirectory() as registry:
+        res["seeds_together"] = seeds_together(steps, 2 if args.quick else 5, repeats, process_env(registry))
+    res["ratios"] = {"seeds_together_vs_separate": res["seeds_together"]["separate_s"]
+                     / res["seeds_together"]["together_s"]}
+    res["wall_s"] = time.perf_counter() - t_start
+    page = "\n".join([
+        "<!-- generated by benchmarks/throughput.py --only seeds-together; do not edit by hand -->",
+        f"Measured {res['date']} with `{res['command']}` (commit {res['commit']}, {res['machine']}, Python "
+        f"{res['python']}, torch {res['torch']}; best of {res['repeats']} repeats, the sides alternated"
+        f"{'; QUICK smoke run, not a measurement' if res['quick'] else ''}).", "",
+        "| measure | this engine | reference | ratio | target |", "|---|---|---|---|---|",
+        *seeds_together_markdown(res)]) + "\n"
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "throughput-seeds-together.json").write_text(json.dumps(res, indent=1) + "\n")
+    (args.out / "throughput-seeds-together.md").write_text(page)
+    print(page)
     return res
 
 

@@ -234,9 +234,12 @@ def test_throughput_quick_run_writes_its_tables_and_figures(tmp_path):
     names = throughput.process_commands(30720, 20480)
     res["whole_process"] = {name: {"command": " ".join(c), "wall_s": 10.0 + i} for i, (name, c) in
                             enumerate(names.items())}
+    res["seeds_together"] = {"seeds": 5, "steps_per_seed": 20480, "together_s": 10.0, "separate_s": 16.0}
     ratios = throughput.ratios(res)
     assert ratios["teacher_vs_sb3_script"] == 11.0 / 10.0 and ratios["two_teachers_vs_ppo"] == 14.0 / 12.0
-    assert "two-teacher transfer" in throughput.markdown({**res, "ratios": ratios})
+    assert ratios["seeds_together_vs_separate"] == 1.6
+    page = throughput.markdown({**res, "ratios": ratios})
+    assert "two-teacher transfer" in page and "5 seeds × 20,480 steps" in page
 
 
 def test_aggregate_report_normalises_by_random_and_the_baseline_per_target(registry, tmp_path):

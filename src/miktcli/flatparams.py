@@ -26,6 +26,23 @@ class FlatParameters:
             p.grad = self.flat.grad[offset : offset + n].view_as(p)
             offset += n
 
+    def rebind(self, flat: torch.Tensor, grad: torch.Tensor) -> None:
+        """Move the parameters and their gradients into `flat` and `grad` (e.g. one row each of buffers that
+        hold several models, see miktcli.together), values kept; the optimiser's parameter stays the same
+        object, so its state and every view stay valid."""
+        if flat.shape != self.flat.shape or grad.shape != self.flat.shape or not (flat.is_contiguous()
+                                                                                and grad.is_contiguous()):
+            raise ValueError(f"rebind needs contiguous buffers of shape {tuple(self.flat.shape)}")
+        flat.copy_(self.flat.data)
+        grad.copy_(self.flat.grad)
+        self.flat.data, self.flat.grad = flat, grad
+        offset = 0
+        for p in self.params:
+            n = p.numel()
+            p.data = flat[offset : offset + n].view_as(p)
+            p.grad = grad[offset : offset + n].view_as(p)
+            offset += n
+
     def zero_grad(self) -> None:
         self.flat.grad.zero_()
 

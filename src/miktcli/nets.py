@@ -137,9 +137,17 @@ class MLP(nn.Module):
             orthogonal_linear(a, b, math.sqrt(2.0)) for a, b in zip(sizes[:-1], sizes[1:], strict=True)
         )
         self.head = orthogonal_linear(sizes[-1], n_out, out_gain)
-        # Plain references for the hot paths (F.linear on them): they skip nn.Module's call overhead.
-        self.layer_params = [(layer.weight, layer.bias) for layer in self.hidden]
-        self.head_params = (self.head.weight, self.head.bias)
+
+    # The hot paths call F.linear on these, skipping nn.Module's call overhead. Read afresh at each call (not
+    # kept as references), so that torch.func.functional_call's swapped parameters reach them: the
+    # seeds-together update (miktcli.together) runs every seed's loss through one module that way.
+    @property
+    def layer_params(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        return [(layer.weight, layer.bias) for layer in self.hidden]
+
+    @property
+    def head_params(self) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.head.weight, self.head.bias
 
     @property
     def hidden_sizes(self) -> list[int]:

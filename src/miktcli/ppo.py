@@ -264,6 +264,15 @@ def state_misfit(module: torch.nn.Module, state: dict[str, torch.Tensor]) -> str
     return None
 
 
+def update_metrics(means: dict[str, float], first_ratio_dev: float, batch: Minibatch) -> dict[str, float]:
+    """An update's metrics row: the minibatch logs' means, the first minibatch's ratio deviation (0 unless
+    the rollout's policy differs from the trained one) and the value function's explained variance."""
+    returns, values = batch.returns, batch.values
+    var_y = float(returns.var())
+    return {**means, "first_minibatch_ratio_dev": first_ratio_dev,
+            "explained_variance": float("nan") if var_y == 0 else 1 - float((returns - values).var()) / var_y}
+
+
 class PPOTrainer:
     """Trains an ActorCritic on a vector of envs. Iterate `run()` to get one metrics dict per update."""
 
@@ -461,49 +470,58 @@ class PPOTrainer:
                     first_ratio_dev = float(logs["ratio_dev"])
                     names = [k for k in logs if k != "ratio_dev"]
                 logged.append(torch.stack([logs[k].detach() for k in names]))
-        means = torch.stack(logged).mean(0).tolist()
-        metrics = dict(zip(names, means, strict=True))
-        metrics["first_minibatch_ratio_dev"] = first_ratio_dev
-        returns, values = batch.returns, batch.values
-        var_y = float(returns.var())
-        metrics["explained_variance"] = float("nan") if var_y == 0 else 1 - float((returns - values).var()) / var_y
-        return metrics
+        return update_metrics(dict(zip(names, torch.stack(logged).mean(0).tolist(), strict=True)),
+                              first_ratio_dev, batch)
 
     # --- the loop -----------------------------------------------------------------------------------
     def run(self) -> Iterator[dict[str, Any]]:
-        cfg = self.config
         while self.iteration < self.num_iterations:
-            progress = self.iteration / self.num_iterations
-            self.agent.set_progress(progress)
-            lr = cfg.learning_rate * (1.0 - progress if cfg.lr_schedule == "linear" else 1.0)
-            for group in self.optimizer.param_groups:
-                group["lr"] = lr
+            lr = self.begin_iteration()
             t_start = time.perf_counter()
             rollout, stats = self.collect()
             t_rollout = time.perf_counter() - t_start
-            with flushing_denormals(cfg.flush_denormal):
+            with flushing_denormals(self.config.flush_denormal):
                 batch = self._values_and_targets(rollout)
                 losses = self.update(batch)
-                with torch.no_grad():
-                    self.agent.observe_rollout(batch.obs, (self.iteration + 1) / self.num_iterations)
-            t_total = time.perf_counter() - t_start
-            self.iteration += 1
-            self.global_step += cfg.batch_size
-            yield {
-                "iteration": self.iteration,
-                "steps": self.global_step,
-                "episodes": self.episodes,
-                "return_mean": float(np.mean(self.recent_returns)) if self.recent_returns else float("nan"),
-                "length_mean": float(np.mean(self.recent_lengths)) if self.recent_lengths else float("nan"),
-                "lr": lr,
-                "log_std_mean": float(self.agent.log_std.detach().mean()),
-                "steps_per_sec": cfg.batch_size / t_total,
-                "time_rollout": t_rollout,
-                "time_update": t_total - t_rollout,
-                **stats,
-                **losses,
-                **self.agent.diagnostics(),
-            }
+                self.observe(batch)
+            yield self.end_iteration(lr, stats, losses, t_rollout, time.perf_counter() - t_start - t_rollout)
+
+    # The loop's pieces, which miktcli.together also drives for several trainers in lock step.
+    def begin_iteration(self) -> float:
+        """Place the schedule and the learning rate for the next iteration; returns the learning rate."""
+        cfg = self.config
+        progress = self.iteration / self.num_iterations
+        self.agent.set_progress(progress)
+        lr = cfg.learning_rate * (1.0 - progress if cfg.lr_schedule == "linear" else 1.0)
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+        return lr
+
+    def observe(self, batch: Minibatch) -> None:
+        with torch.no_grad():
+            self.agent.observe_rollout(batch.obs, (self.iteration + 1) / self.num_iterations)
+
+    def end_iteration(self, lr: float, stats: dict[str, Any], losses: dict[str, float], t_rollout: float,
+                      t_update: float) -> dict[str, Any]:
+        """Count the iteration done; its metrics row."""
+        cfg = self.config
+        self.iteration += 1
+        self.global_step += cfg.batch_size
+        return {
+            "iteration": self.iteration,
+            "steps": self.global_step,
+            "episodes": self.episodes,
+            "return_mean": float(np.mean(self.recent_returns)) if self.recent_returns else float("nan"),
+            "length_mean": float(np.mean(self.recent_lengths)) if self.recent_lengths else float("nan"),
+            "lr": lr,
+            "log_std_mean": float(self.agent.log_std.detach().mean()),
+            "steps_per_sec": cfg.batch_size / (t_rollout + t_update),
+            "time_rollout": t_rollout,
+            "time_update": t_update,
+            **stats,
+            **losses,
+            **self.agent.diagnostics(),
+        }
 
     # --- state for checkpoints and resume -----------------------------------------------------------
     def state_tensors(self) -> dict[str, torch.Tensor]:

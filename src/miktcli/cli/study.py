@@ -115,6 +115,10 @@ def study(
         if workers is None and address is None:  # embedded: serial, in this process, no Ray
             failed = _run_serially(st, registry, grid.eval_episodes, retrain_missing)
         else:
+            if grid.seeds_together:
+                raise MiktError(f"{grid_file}: seeds_together trains a cell's seeds in this process; the Ray "
+                                "executor trains one seed a task", hint="run the study without --workers "
+                                "and --address, or set seeds_together = false")
             failed = _run_on_ray(st, registry, workers, address, grid.eval_episodes, chunk_iterations,
                                  retrain_missing)
         _report(st)  # also when cells failed: the others are reported, the failed ones named
@@ -144,13 +148,13 @@ def _announce_pins(st) -> None:
 
 def _run_serially(st, registry: Path, eval_episodes: int, retrain_missing: bool) -> list[tuple[str, str, str]]:
     """Every unfinished cell in this process, one after another; (cell, run id, error) of each that failed."""
-    from miktcli.cli.training import train_with_progress
+    from miktcli.cli.training import train_cells
     from miktcli.studies.serial import run_serially
 
     total = len(st.distinct_cells())
     done, failed, training, announced = 0, [], None, False
     try:
-        for event in run_serially(st, command_line(), lambda r: train_with_progress(r, registry, eval_episodes),
+        for event in run_serially(st, command_line(), lambda rs: train_cells(rs, registry, eval_episodes),
                                   retrain_missing):
             training = None
             if not announced:  # the first event comes right after the study was prepared

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import typer
 
 from miktcli import limits
@@ -26,7 +28,7 @@ from miktcli.cli.common import (
 )
 from miktcli.cli.console import err, print_data, print_json
 from miktcli.cli.method_options import flag_of, parse_method_options
-from miktcli.cli.training import train_transfer_run
+from miktcli.cli.training import train_together_run, train_transfer_run
 from miktcli.errors import MethodOptionError, MiktError, TeacherCountError, TeacherMismatchError
 
 HELP = """Transfer from teachers to a new body with MIKT, or run a baseline on the same engine.
@@ -95,6 +97,9 @@ def transfer(
     method: str = typer.Option("mikt", "--method", help="The transfer method (listed in the full help)."),
     steps: StepsOption = 2_000_000,
     seed: SeedOption = 0,
+    seeds: str = typer.Option(None, "--seeds", help="Several seeds trained in one process as one batched "
+                              "problem, e.g. 0-4 or 0,2,5: one run per seed, the same distribution as alone "
+                              "(not the same bits; the cards say so)."),
     kl_coef: float = typer.Option(None, "--kl-coef", min=0, help="KL(pi||pi_old) weight (default: the method's)."),
     encoder_width: list[int] = typer.Option(
         None, "--encoder-width", help="Optional check: must equal each teacher's state dim (read from its card)."),
@@ -114,10 +119,14 @@ def transfer(
 ) -> None:
     from miktcli.methods import get_method, transfer_methods
     from miktcli.registry.runs import open_resumable
+    from miktcli.workflows.together import parse_seeds, start_transfers_together, together_group
     from miktcli.workflows.transfer import start_transfer
 
     setup_torch()
     reg = registry
+    if seeds is not None and given_on_command_line(ctx, {"seed", "resume", "branch", "at"}):
+        raise typer.BadParameter("cannot be combined with --seed, --resume or --branch", ctx=ctx,
+                                 param_hint="'--seeds'")
     if branch or at or resume:
         if branch or at:
             run = start_branch(ctx, reg, branch, at)
@@ -137,9 +146,11 @@ def transfer(
         if not m.encoder_per_teacher:
             refuse_options_of_other_methods(ctx, method, {"encoder_width"})
         try:
-            run = start_transfer(
-                reg, to=to, method=method, teacher_refs=list(teacher or []), steps=steps, seed=seed,
-                command=command_line(), kl_coef=kl_coef, num_envs=num_envs, options=options,
+            start = partial(start_transfers_together, reg, parse_seeds(seeds)) if seeds is not None else \
+                partial(start_transfer, reg, seed=seed)
+            started = start(
+                to=to, method=method, teacher_refs=list(teacher or []), steps=steps, command=command_line(),
+                kl_coef=kl_coef, num_envs=num_envs, options=options,
                 compile_loss=compile_loss, eval_episodes=eval_episodes, ppo_settings=parse_ppo_settings(ppo),
                 encoder_widths=list(encoder_width) if encoder_width else None,
                 hidden=parse_hidden(hidden) if hidden else None,
@@ -148,11 +159,29 @@ def transfer(
             if error.hint is None:
                 error.hint = flag_hint(error)
             raise
+        run = started[0] if isinstance(started, list) else started
         note_rounding(steps, run.card.total_steps)
+    group = together_group(reg, run)
+    if len(group) > 1 or run.card.seeds_together:
+        report_together(group, train_together_run(group, reg, eval_episodes), as_json)
+        return
     result = train_transfer_run(run, reg, eval_episodes)
     if as_json:
         print_json({"run": run.id, **result})
         return
+    report_result(run, result)
+
+
+def report_together(runs, results: list[dict], as_json: bool) -> None:
+    if as_json:
+        print_json([{"run": run.id, **result} for run, result in zip(runs, results, strict=True)])
+        return
+    for run, result in zip(runs, results, strict=True):
+        err.print(f"{run.id} (seed {run.card.seed}):")
+        report_result(run, result)
+
+
+def report_result(run, result: dict) -> None:
     without = result["eval_without_teacher"]
     if "eval_with_teacher" in result:
         w = result["eval_with_teacher"]

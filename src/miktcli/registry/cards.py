@@ -227,6 +227,10 @@ class RunCard(BaseModel):
     result: dict[str, Any] = Field(default_factory=dict)
     error: str | None = None
     branched_from: BranchPoint | None = None
+    seeds_together: list[str] = Field(
+        default_factory=list, description="the runs (this one among them) that trained in one process as one "
+        "batched problem (miktcli.together): the same distribution as training alone, not the same bits; "
+        "empty: trained alone")
     # the environment as the run started on it (envs/fingerprint.py); None on cards before schema 4
     env_spec: dict[str, Any] | None = None
     env_fingerprint: str | None = None

@@ -89,6 +89,9 @@ class Grid(BaseModel):
     random_returns: bool = Field(True, description="the report's across-pairs section, normalised between the "
                                  "random policy (measured once per target into the study folder) and the baseline")
     compile_loss: bool = Field(False, description="every cell's PPO loss through torch.compile (see --compile)")
+    seeds_together: bool = Field(False, description="train each cell's seeds in one process as one batched "
+                                 "problem (mikt transfer --seeds): the same distribution, not the same bits; "
+                                 "serial studies only (no --workers)")
     pairs: list[PairSpec] = Field(min_length=1)
     methods: list[MethodSpec] = Field(min_length=1)
 

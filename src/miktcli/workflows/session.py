@@ -167,25 +167,32 @@ class Job:
 
     def iterations(self) -> Iterator[dict[str, Any] | Phase]:
         """Train to the end, checkpointing after every iteration (and keeping one at each change of phase)."""
+        yield from self.begin()
+        for metrics in self.trainer.run():
+            yield from self.record(metrics)
+
+    def begin(self) -> Iterator[Phase]:
+        """Mark the run running in this process's code (before its first iteration here)."""
         run, trainer = self.run, self.trainer
         run.save_card(status="running", error=None,
                       code_history=continued_code_history(run.card.code_history, trainer.global_step))
         yield from self._phase_change()
-        for metrics in trainer.run():
-            if math.isfinite(metrics["return_mean"]):
-                self.best_return = max(self.best_return, metrics["return_mean"])
-            progress = {**trainer.progress_state(), "best_return": self.best_return}
-            # Checkpoint first: a metrics row never describes an iteration the checkpoint lacks.
-            run.save_checkpoint(trainer.state_tensors(), trainer.iteration, trainer.global_step, progress)
-            run.append_metrics(metrics)
-            slowed = self.slowdowns.add(self._phase_of(trainer.iteration), trainer.global_step,
-                                        update_ratio(metrics))
-            if slowed is not None:  # kept in the card, so `inspect` and study reports say so
-                run.save_card(result={**run.card.result,
-                                      "slowdowns": [*run.card.result.get("slowdowns", []), slowed]})
-            run.save_card(steps_done=trainer.global_step)
-            yield metrics
-            yield from self._phase_change()
+
+    def record(self, metrics: dict[str, Any]) -> Iterator[dict[str, Any] | Phase]:
+        """Keep an iteration the trainer finished: checkpoint, metrics row, card; then any change of phase."""
+        run, trainer = self.run, self.trainer
+        if math.isfinite(metrics["return_mean"]):
+            self.best_return = max(self.best_return, metrics["return_mean"])
+        progress = {**trainer.progress_state(), "best_return": self.best_return}
+        # Checkpoint first: a metrics row never describes an iteration the checkpoint lacks.
+        run.save_checkpoint(trainer.state_tensors(), trainer.iteration, trainer.global_step, progress)
+        run.append_metrics(metrics)
+        slowed = self.slowdowns.add(self._phase_of(trainer.iteration), trainer.global_step, update_ratio(metrics))
+        if slowed is not None:  # kept in the card, so `inspect` and study reports say so
+            run.save_card(result={**run.card.result, "slowdowns": [*run.card.result.get("slowdowns", []), slowed]})
+        run.save_card(steps_done=trainer.global_step)
+        yield metrics
+        yield from self._phase_change()
 
     def _phase_of(self, iteration: int) -> str:
         """The schedule's phase during an iteration (1-based, as metrics rows count them)."""

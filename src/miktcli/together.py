@@ -1,0 +1,156 @@
+"""Several seeds of one cell trained in one process as one batched problem ("seeds together").
+
+Each seed keeps its own PPOTrainer: its envs, generators, normalisers, reward scaler, Adam state, metrics and
+checkpoints, so every run folder holds what a run trained alone writes. What the seeds share is the update:
+their parameters become the rows of one (seeds, P) buffer, and every minibatch's loss and gradient are
+computed for all seeds at once by torch.func.vmap over one module (the agents have one shape, so seed 0's
+agent is the function and each seed's row is swapped in by functional_call; the frozen teachers, equal in
+every seed, are read once). Each seed draws its minibatches from its own generator in the order it would
+alone, its gradient is clipped by its own norm and its own Adam steps its row.
+
+The numbers are a single-seed run's to float rounding, not bit for bit (vmap's batched kernels sum in
+another order), so the card records the mode (RunConfig.seeds_together).
+
+The rollouts stay one seed after another with each agent's own rollout forward: under vmap the per-step
+forward of five two-teacher agents cost more than five plain ones (1.32 against 1.07 ms, measured
+2026-12-04), and the physics, most of a step, does not batch.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import torch
+from torch import nn
+from torch.func import functional_call, grad, vmap
+
+from miktcli.ppo import Minibatch, PPOTrainer, compiled, flushing_denormals, update_metrics
+
+
+class _TrainerLoss(nn.Module):
+    """A trainer's minibatch loss as a module call, so functional_call can swap its agent's parameters."""
+
+    def __init__(self, trainer: PPOTrainer):
+        super().__init__()
+        self.agent = trainer.agent
+        self.trainer = [trainer]  # in a list: not a submodule
+
+    def forward(self, mb: Minibatch, old_log_std: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        return self.trainer[0].loss(mb, old_log_std)
+
+
+def check_alike(trainers: list[PPOTrainer]) -> None:
+    """Seeds train together only where they are one problem: same settings, schedule position and shapes."""
+    if len(trainers) < 2:
+        raise ValueError("seeds together needs at least two trainers")
+    first = trainers[0]
+    shapes = [tuple(p.shape) for p in first.flat.params]
+    for t in trainers[1:]:
+        if t.config != first.config or t.num_iterations != first.num_iterations:
+            raise ValueError("seeds trained together need the same PPO settings and budget")
+        if t.iteration != first.iteration:
+            raise ValueError(f"seeds trained together start at one iteration ({first.iteration} and {t.iteration})")
+        if type(t.agent) is not type(first.agent) or [tuple(p.shape) for p in t.flat.params] != shapes:
+            raise ValueError("seeds trained together need agents of one shape")
+
+
+class SeedsTogether:
+    """Trains `trainers` (one per seed) in lock step; iterate `run()` for each iteration's metrics rows."""
+
+    def __init__(self, trainers: list[PPOTrainer]):
+        check_alike(trainers)
+        self.trainers = trainers
+        self.config = trainers[0].config
+        size = trainers[0].flat.flat.numel()
+        self.params = torch.zeros(len(trainers), size)
+        self.grads = torch.zeros(len(trainers), size)
+        for row, trainer in enumerate(trainers):
+            trainer.flat.rebind(self.params[row], self.grads[row])
+        self._grads = self._gradient_function()
+
+    def _gradient_function(self) -> Callable[..., Any]:
+        lead = self.trainers[0]
+        names = [name for name, p in lead.agent.named_parameters() if p.requires_grad]
+        owned = [p for p in lead.agent.parameters() if p.requires_grad]
+        if owned != lead.flat.params:  # the row's layout is FlatParameters' order, which is this one
+            raise ValueError("the agent's trainable parameters are not in the flat buffer's order")
+        # Each parameter as its own (seeds, *shape) view of the row buffers, passed to the gradient as a
+        # dict: slicing one (seeds, P) input inside the function instead would make every slice's backward
+        # write a full-size zero gradient (~40 of them a minibatch, most of the update's time).
+        self.param_views: dict[str, torch.Tensor] = {}
+        self.grad_views: dict[str, torch.Tensor] = {}
+        seeds, offset = len(self.trainers), 0
+        for name, p in zip(names, owned, strict=True):
+            n = p.numel()
+            self.param_views[f"agent.{name}"] = self.params[:, offset:offset + n].view(seeds, *p.shape)
+            self.grad_views[f"agent.{name}"] = self.grads[:, offset:offset + n].view(seeds, *p.shape)
+            offset += n
+        module = _TrainerLoss(lead)
+
+        def loss_of_seed(params: dict[str, torch.Tensor], mb: Minibatch, old_log_std: torch.Tensor):
+            return functional_call(module, params, (mb, old_log_std))
+
+        gradient = vmap(grad(loss_of_seed, has_aux=True))
+        return compiled(gradient) if self.config.compile_loss else gradient
+
+    # --- update -------------------------------------------------------------------------------------
+    def update(self, batches: list[Minibatch]) -> list[dict[str, float]]:
+        cfg, trainers = self.config, self.trainers
+        seeds = len(trainers)
+        batch = Minibatch(*(torch.stack(parts) for parts in zip(*batches, strict=True)))
+        old_log_std = torch.stack([t.agent.log_std.detach().clone() for t in trainers])
+        size = batch.obs.shape[1]
+        rows = torch.arange(seeds)[:, None]
+        logged: list[torch.Tensor] = []
+        names: list[str] = []
+        first_ratio_dev = torch.zeros(seeds)
+        for _epoch in range(cfg.epochs):
+            # each seed's own permutation, from its own generator: the order it would take alone
+            order = torch.stack([torch.randperm(size, generator=t.torch_gen) for t in trainers])
+            shuffled = Minibatch(*(part[rows, order] for part in batch))
+            for start in range(0, size, cfg.minibatch_size):
+                mb = Minibatch(*(part[:, start:start + cfg.minibatch_size] for part in shuffled))
+                grads, logs = self._grads(self.param_views, mb, old_log_std)
+                for name, g in grads.items():
+                    self.grad_views[name].copy_(g)
+                norms = torch.linalg.vector_norm(self.grads, dim=1)
+                self.grads.mul_(torch.clamp(cfg.max_grad_norm / (norms + 1e-6), max=1.0)[:, None])
+                logs["grad_norm"] = norms
+                for t in trainers:
+                    t.optimizer.step()
+                if not logged:
+                    first_ratio_dev = logs["ratio_dev"].detach().clone()
+                    names = [k for k in logs if k != "ratio_dev"]
+                logged.append(torch.stack([logs[k].detach() for k in names], 1))
+        means = torch.stack(logged).mean(0)  # (seeds, names)
+        return [update_metrics(dict(zip(names, means[s].tolist(), strict=True)), float(first_ratio_dev[s]),
+                               batches[s]) for s in range(seeds)]
+
+    # --- the loop -----------------------------------------------------------------------------------
+    def run(self) -> Iterator[list[dict[str, Any]]]:
+        """One list of metrics rows (one per seed, in the trainers' order) per iteration. A row's update
+        time is the batched update's share per seed."""
+        trainers = self.trainers
+        clock = time.perf_counter
+        while trainers[0].iteration < trainers[0].num_iterations:
+            lrs = [t.begin_iteration() for t in trainers]
+            phases = {t.agent.phase(t.iteration / t.num_iterations) for t in trainers}
+            if len(phases) > 1:  # one loss for all: the schedule must agree (it does for equal budgets)
+                raise RuntimeError(f"seeds trained together are in different phases: {sorted(phases)}")
+            collected = []
+            for t in trainers:
+                start = clock()
+                rollout, stats = t.collect()
+                collected.append((rollout, stats, clock() - start))
+            start = clock()
+            with flushing_denormals(self.config.flush_denormal):
+                batches = [t._values_and_targets(rollout) for t, (rollout, _, _) in zip(trainers, collected,
+                                                                                        strict=True)]
+                losses = self.update(batches)
+                for t, b in zip(trainers, batches, strict=True):
+                    t.observe(b)
+            share = (clock() - start) / len(trainers)
+            yield [t.end_iteration(lr, stats, loss, t_rollout, share)
+                   for t, lr, (_, stats, t_rollout), loss in zip(trainers, lrs, collected, losses, strict=True)]
