@@ -74,7 +74,8 @@ def test_a_failing_cell_does_not_stop_the_cells_after_it_on_a_rerun(registry, tm
     study = Study(load_grid(write_grid(tmp_path)), tmp_path / "out", registry)
     trained = []
 
-    def train(run):
+    def train(cell_runs):
+        (run,) = cell_runs  # one run a cell: the grid trains seeds alone
         trained.append(run.card.seed)
         if run.card.seed == 1:
             run.save_card(status="failed", error="ValueError: bad")
