@@ -9,7 +9,7 @@ Every study report (`mikt study`, `--report-only`) carries the same section ("Ac
 `across_pairs` in summary.json; the library's studies.aggregates), with the random returns of the study
 folder's random-returns.json. This script makes it from a study's committed snapshots with another file of
 random-policy returns (default: benchmarks/results/random-policy.json, made by benchmarks/random_returns.py),
-so it works from a fresh clone and writes nothing into the registry. Writes `STUDY/aggregate.md` and
+so it works from a fresh clone and writes nothing into the registry. Writes `STUDY/across_tasks.md` and
 `STUDY/aggregate-profile.png`.
 """
 
@@ -21,8 +21,8 @@ from pathlib import Path
 
 from cross_study import snapshot_runs
 
-from miktcli import aggregate
 from miktcli.registry.files import write_text_atomic
+from miktcli.stats import across_tasks
 from miktcli.studies.aggregates import across_pairs
 from miktcli.studies.grid import Grid, load_grid
 from miktcli.studies.render_figures import write_profiles
@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def aggregate_report(study: Path, grid: Grid, random: dict[str, float], out_dir: Path | None = None,
-                     n_resamples: int = aggregate.RESAMPLES,
+                     n_resamples: int = across_tasks.RESAMPLES,
                      random_source: str = "benchmarks/results/random-policy.json") -> Path:
     out_dir = out_dir or study
     missing = sorted({p.to for p in grid.pairs} - set(random))
@@ -48,7 +48,7 @@ def aggregate_report(study: Path, grid: Grid, random: dict[str, float], out_dir:
              "section.", "", *across_pairs_lines(section)]
     if summary.left_out:
         lines += ["Left out (files incomplete): " + "; ".join(summary.left_out), ""]
-    path = out_dir / "aggregate.md"
+    path = out_dir / "across_tasks.md"
     write_text_atomic(path, "\n".join(lines))
     return path
 

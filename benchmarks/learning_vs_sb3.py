@@ -27,10 +27,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from miktcli.engine.episodes import run_episodes
+from miktcli.engine.policies import GaussianActorCritic
+from miktcli.engine.ppo import PPOConfig, PPOTrainer
 from miktcli.envs import make_env
-from miktcli.evaluation import run_episodes
-from miktcli.policies import GaussianActorCritic
-from miktcli.ppo import PPOConfig, PPOTrainer
 
 RESULTS = Path(__file__).resolve().parent / "results" / "learning-vs-sb3.jsonl"
 # Curve points: steps, training return, then (recorded since the investigation began) these per-update values.

@@ -36,10 +36,10 @@ from pathlib import Path
 import numpy as np
 from cross_study import snapshot_runs, teachers_of
 
-from miktcli import aggregate
-from miktcli.plots import png_performance_profiles
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.runs import Run
+from miktcli.stats import across_tasks
+from miktcli.stats.plots import png_performance_profiles
 from miktcli.studies.grid import Grid, PairSpec, load_grid
 from miktcli.studies.summary import MethodSummary, StudySummary, mean_pm_std, summarise
 
@@ -400,11 +400,11 @@ def family_scores(family: Family, measure: str, scale: dict[str, dict[str, tuple
         if not values.size or measure not in scale.get(target, {}):
             continue
         scores.setdefault(pair if by == "pair" else target, []).append(
-            aggregate.normalized(values, *scale[target][measure]))
+            across_tasks.normalized(values, *scale[target][measure]))
     return {key: np.concatenate(parts) for key, parts in scores.items()}
 
 
-def _estimate(e: aggregate.Estimate) -> str:
+def _estimate(e: across_tasks.Estimate) -> str:
     return f"{e.value:.2f} [{e.low:.2f}, {e.high:.2f}]"
 
 
@@ -441,8 +441,8 @@ def across_lines(families: list[Family], baseline_of: dict[str, MethodSummary | 
                 continue
             runs = sum(v.size for v in scores.values())
             lines.append(f"| {f.label} | {runs} | {len(scores)} | {', '.join(by_target[f.label])} | "
-                         f"{_estimate(aggregate.iqm_estimate(scores, n_resamples, SEED))} | "
-                         f"{_estimate(aggregate.mean_estimate(scores, n_resamples, SEED))} |")
+                         f"{_estimate(across_tasks.iqm_estimate(scores, n_resamples, SEED))} | "
+                         f"{_estimate(across_tasks.mean_estimate(scores, n_resamples, SEED))} |")
         lines += ["", "| X vs Y | P(X > Y) [95 % CI] | targets |", "|---|---|---|"]
         for i, x in enumerate(families):
             for y in families[i + 1:]:
@@ -450,7 +450,7 @@ def across_lines(families: list[Family], baseline_of: dict[str, MethodSummary | 
                 if not shared:
                     lines.append(f"| {x.label} vs {y.label} | — (no shared target) | 0 |")
                     continue
-                e = aggregate.probability_of_improvement_estimate(by_target[x.label], by_target[y.label],
+                e = across_tasks.probability_of_improvement_estimate(by_target[x.label], by_target[y.label],
                                                                   n_resamples, SEED)
                 lines.append(f"| {x.label} vs {y.label} | {_estimate(e)} | {', '.join(shared)} |")
         lines.append("")
@@ -461,7 +461,7 @@ def across_lines(families: list[Family], baseline_of: dict[str, MethodSummary | 
         taus = np.linspace(0.0, max(top, 1.0) * 1.05, PROFILE_POINTS)
         drawn = {}
         for label, scores in profiles.items():
-            point, low, high = aggregate.performance_profile_estimate(scores, taus, PROFILE_RESAMPLES, SEED)
+            point, low, high = across_tasks.performance_profile_estimate(scores, taus, PROFILE_RESAMPLES, SEED)
             drawn[label] = (taus.tolist(), point.tolist(), low.tolist(), high.tolist())
         png_performance_profiles(drawn, profile,
                                  f"performance profiles ({MEASURES[0]}, normalised; 95 % bands)",
@@ -471,7 +471,7 @@ def across_lines(families: list[Family], baseline_of: dict[str, MethodSummary | 
 
 
 def report(study: Path, grid: Grid, one_study: Path, one_grid: Grid, cat: Cat, random: dict[str, float],
-           random_source: str, method: str = "mikt", n_resamples: int = aggregate.RESAMPLES,
+           random_source: str, method: str = "mikt", n_resamples: int = across_tasks.RESAMPLES,
            fall: tuple[int, int] = FALL, out: Path | None = None) -> Path:
     """The report, every family on the two-teacher grid's seeds (so every figure averages the same seeds), at
     `out` (default STUDY/against-cat.md; its figure beside it, named after it). The across-studies section needs

@@ -20,8 +20,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from throughput import mikt_agent  # noqa: E402
 
+from miktcli.engine.ppo import PPOConfig, PPOTrainer  # noqa: E402
 from miktcli.envs import make_env  # noqa: E402
-from miktcli.ppo import PPOConfig, PPOTrainer  # noqa: E402
 
 MATMULS = ("aten::addmm", "aten::mm", "aten::bmm", "aten::matmul")
 

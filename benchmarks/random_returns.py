@@ -1,6 +1,6 @@
 """The random policy's return on each target: the zero of the normalised scores (studies.aggregates).
 
-The measurement is the library's (miktcli.random_policy: uniform over the action box, one seeded stream per
+The measurement is the library's (miktcli.engine.random_policy: uniform over the action box, one seeded stream per
 target, whole episodes); a study measures the targets it lacks itself, into its folder's random-returns.json.
 Measured once for the five targets and committed:
 
@@ -14,7 +14,7 @@ import json
 import subprocess
 from pathlib import Path
 
-from miktcli.random_policy import EPISODES, POLICY, SEED, random_returns
+from miktcli.engine.random_policy import EPISODES, POLICY, SEED, random_returns
 from miktcli.registry.files import write_text_atomic
 
 TARGETS = ["centipede-six", "centipede-eight", "cp-centipede-six", "cp-centipede-eight", "ant"]

@@ -14,8 +14,8 @@ import json
 import sys
 from pathlib import Path
 
-from miktcli.plots import png_plot
 from miktcli.registry.teachers import list_names, read_teacher_card, teachers_dir
+from miktcli.stats.plots import png_plot
 
 ROOT = Path(__file__).resolve().parents[1]
 AUTHORS = {  # final mean return of the authors' PPO logs, 2M steps, 5 seeds (shared/reference)

@@ -40,12 +40,12 @@ import mujoco
 import numpy as np
 import torch
 
-from miktcli.compile_choice import AUTO_MIN_STEPS
+from miktcli.engine.compile_choice import AUTO_MIN_STEPS
+from miktcli.engine.policies import GaussianActorCritic
+from miktcli.engine.ppo import PPOConfig, PPOTrainer, RewardScaler
 from miktcli.envs import make_env
 from miktcli.envs.vector import SyncEnvs
 from miktcli.methods.mikt import MiktActorCritic, MiktConfig
-from miktcli.policies import GaussianActorCritic
-from miktcli.ppo import PPOConfig, PPOTrainer, RewardScaler
 
 ROOT = Path(__file__).resolve().parents[1]
 # in process at study settings (centipede-eight, compiled update): PPO from scratch, one and two teachers

@@ -33,9 +33,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from throughput import mikt_agent  # noqa: E402
 
+from miktcli.engine.policies import GaussianActorCritic  # noqa: E402
+from miktcli.engine.ppo import PPOConfig, PPOTrainer  # noqa: E402
 from miktcli.envs import make_env  # noqa: E402
-from miktcli.policies import GaussianActorCritic  # noqa: E402
-from miktcli.ppo import PPOConfig, PPOTrainer  # noqa: E402
 
 SETUPS = {"PPO, Ant": ("ant", None), "MIKT 2 teachers (four + six → eight)": (
     "centipede-eight", ["centipede-four", "centipede-six"])}

@@ -21,7 +21,7 @@ def registry(tmp_path, monkeypatch):
 def ctrl_c_at_second_update(monkeypatch):
     """Training raises KeyboardInterrupt (as Ctrl-C would) in its second update; call the returned function
     to let training run normally again."""
-    from miktcli.ppo import PPOTrainer
+    from miktcli.engine.ppo import PPOTrainer
 
     original, calls = PPOTrainer.update, {"n": 0}
 

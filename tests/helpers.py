@@ -93,7 +93,7 @@ def fixture_with(tmp_path, name, data=None, weights=None, compress=zipfile.ZIP_S
 def fake_run(registry, env, method, seed, curve, eval_return, mixing=None, teachers=(), per_row=None):
     """A completed run with a given return curve (one point per 2048-step iteration); `per_row`, where given,
     holds more metrics for each iteration (one dict each)."""
-    from miktcli.ppo import PPOConfig
+    from miktcli.engine.ppo import PPOConfig
     from miktcli.registry.cards import RunConfig, TeacherRef
     from miktcli.registry.runs import create_run
 

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from miktcli.aggregate import (
+from miktcli.stats.across_tasks import (
     Estimate,
     iqm,
     iqm_estimate,

@@ -173,7 +173,7 @@ def test_an_in_flight_snapshot_carries_an_unfinished_run_to_another_machine(regi
     from typer.testing import CliRunner
 
     from miktcli.cli.app import app
-    from miktcli.ppo import PPOTrainer
+    from miktcli.engine.ppo import PPOTrainer
     from miktcli.registry.runs import RunLock, open_run
 
     grid_file, out = tmp_path / "g.toml", tmp_path / "out"

@@ -7,11 +7,11 @@ import pytest
 import torch
 import torch._dynamo
 
+from miktcli.engine.policies import GaussianActorCritic
+from miktcli.engine.ppo import PPOConfig, PPOTrainer
 from miktcli.envs import make_env
 from miktcli.errors import MiktError
 from miktcli.methods.mikt import MiktActorCritic, MiktConfig
-from miktcli.policies import GaussianActorCritic
-from miktcli.ppo import PPOConfig, PPOTrainer
 
 needs_compiler = pytest.mark.skipif(shutil.which("g++") is None and shutil.which("clang++") is None,
                                     reason="torch.compile on CPU needs a C++ compiler")
@@ -83,8 +83,8 @@ def test_past_the_recompile_limit_is_an_error_not_a_silent_eager_fallback(monkey
 
 
 def test_auto_compiles_only_runs_long_enough_and_only_with_a_compiler(monkeypatch):
-    from miktcli import compile_choice
-    from miktcli.compile_choice import AUTO_MIN_STEPS, decide_compile
+    from miktcli.engine import compile_choice
+    from miktcli.engine.compile_choice import AUTO_MIN_STEPS, decide_compile
 
     assert decide_compile(True, 2048) == (True, "on: asked (--compile)")
     assert decide_compile(False, 2_000_000) == (False, "off: asked (--no-compile)")

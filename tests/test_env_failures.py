@@ -18,7 +18,7 @@ def test_training_on_an_env_that_fails_in_step_names_its_spec(registry, tmp_path
 
 
 def test_evaluating_on_an_env_that_fails_in_step_names_its_spec(tmp_path, monkeypatch):
-    from miktcli.policies import GaussianActorCritic
+    from miktcli.engine.policies import GaussianActorCritic
     from miktcli.workflows.evaluate import evaluation_summary
 
     spec_dir(tmp_path, monkeypatch, badstep=BREAKS_AT_STEP)

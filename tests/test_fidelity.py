@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 import torch
 
+from miktcli.engine.episodes import run_episodes
+from miktcli.engine.policies import GaussianActorCritic, gaussian_kl
+from miktcli.engine.ppo import PPOConfig, PPOTrainer
 from miktcli.envs import make_env
 from miktcli.envs.vector import SyncEnvs
-from miktcli.evaluation import run_episodes
 from miktcli.methods.mikt import MiktActorCritic, MiktConfig
-from miktcli.policies import GaussianActorCritic, gaussian_kl
-from miktcli.ppo import PPOConfig, PPOTrainer
 
 
 class RecordingEnv(gym.Wrapper):

@@ -8,8 +8,8 @@ from pydantic import ValidationError
 from torch.nn import functional as F
 
 from helpers import mikt
+from miktcli.engine.policies import GaussianActorCritic
 from miktcli.methods.mikt import MiktActorCritic, MiktConfig
-from miktcli.policies import GaussianActorCritic
 
 
 def frozen_teacher(obs_dim, act_dim):

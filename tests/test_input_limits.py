@@ -184,7 +184,7 @@ def test_eval_bounds_episodes_and_frames(registry, args):
 
 
 def test_the_library_bounds_evaluation_episodes_and_frames():
-    from miktcli.policies import GaussianActorCritic
+    from miktcli.engine.policies import GaussianActorCritic
     from miktcli.workflows.evaluate import evaluate_policy
 
     policy = GaussianActorCritic(11, 3, [8], [8], "tanh")

@@ -99,7 +99,7 @@ def test_envs_without_a_stepper_take_the_gymnasium_path():
 
 
 def test_rollout_normaliser_matches_the_module_bit_for_bit():
-    from miktcli.nets import ObsNormalizer
+    from miktcli.engine.nets import ObsNormalizer
 
     rng = np.random.default_rng(0)
     ref, fast_module = ObsNormalizer(111), ObsNormalizer(111)
@@ -116,7 +116,7 @@ def test_rollout_normaliser_matches_the_module_bit_for_bit():
 
 
 def test_scalar_reward_scaler_matches_the_array_path_bit_for_bit():
-    from miktcli.ppo import RewardScaler
+    from miktcli.engine.ppo import RewardScaler
 
     rng = np.random.default_rng(1)
     ref, fast = RewardScaler(1, 0.99, 10.0), RewardScaler(1, 0.99, 10.0)
@@ -130,7 +130,7 @@ def test_scalar_reward_scaler_matches_the_array_path_bit_for_bit():
 
 @pytest.mark.parametrize("activation", ["tanh", "relu"])
 def test_rollout_forward_gives_the_same_bits_as_forward(activation):
-    from miktcli.policies import GaussianActorCritic
+    from miktcli.engine.policies import GaussianActorCritic
 
     agent = GaussianActorCritic(111, 8, activation=activation)
     x = torch.empty(1, 111)

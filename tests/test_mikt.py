@@ -3,10 +3,10 @@ import math
 import pytest
 import torch
 
+from miktcli.engine.policies import GaussianActorCritic
 from miktcli.errors import MiktError
 from miktcli.methods.mikt import MiktActorCritic, MiktConfig, initial_student_weight
 from miktcli.methods.mlpp import mlpp_from_teacher
-from miktcli.policies import GaussianActorCritic
 from miktcli.workflows.transfer import check_teachers
 
 

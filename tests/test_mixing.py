@@ -1,6 +1,6 @@
 import pytest
 
-from miktcli.mixing import mixing_series
+from miktcli.methods.mixing import mixing_series
 
 
 def rows(**columns):

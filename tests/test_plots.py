@@ -1,6 +1,6 @@
 """Plot helpers: colours stay with a series name across the panels of one figure."""
 
-from miktcli.plots import png_panels, series_colors, series_linestyles
+from miktcli.stats.plots import png_panels, series_colors, series_linestyles
 
 
 def test_a_name_keeps_its_colour_in_every_panel():
@@ -33,7 +33,7 @@ def test_a_legend_can_say_more_than_the_name_while_the_colour_stays_the_names():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from miktcli.plots import _draw
+    from miktcli.stats.plots import _draw
 
     curve = [(0.0, 1.0), (1.0, 2.0)]
     fig, ax = plt.subplots()

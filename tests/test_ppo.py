@@ -2,12 +2,12 @@ import numpy as np
 import pytest
 import torch
 
+from miktcli.engine.nets import ObsNormalizer
+from miktcli.engine.policies import GaussianActorCritic
+from miktcli.engine.ppo import PPOConfig, PPOTrainer, compute_gae, flushing_denormals
 from miktcli.envs import make_env
 from miktcli.envs.spec import load_spec_file
 from miktcli.envs.vector import SyncEnvs
-from miktcli.nets import ObsNormalizer
-from miktcli.policies import GaussianActorCritic
-from miktcli.ppo import PPOConfig, PPOTrainer, compute_gae, flushing_denormals
 
 
 def test_gae_against_a_hand_computed_case():
@@ -110,7 +110,7 @@ def test_trainer_state_round_trip():
 def test_hand_written_gaussian_log_prob_and_kl_match_torch_distributions():
     from torch.distributions import Independent, Normal, kl_divergence
 
-    from miktcli.policies import gaussian_kl, gaussian_log_prob
+    from miktcli.engine.policies import gaussian_kl, gaussian_log_prob
 
     torch.manual_seed(0)
     mean, old_mean = torch.randn(32, 5), torch.randn(32, 5)

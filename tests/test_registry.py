@@ -5,9 +5,9 @@ import torch
 from safetensors.torch import load as st_load
 from safetensors.torch import save as st_save
 
+from miktcli.engine.policies import GaussianActorCritic
 from miktcli.envs import load_spec
 from miktcli.errors import MiktError
-from miktcli.policies import GaussianActorCritic
 from miktcli.registry.cards import TeacherCard, now
 from miktcli.registry.files import CARD_KEY
 from miktcli.registry.teachers import list_names, load_teacher, publish_teacher, resolve, versions
@@ -197,7 +197,7 @@ def test_a_published_teacher_carries_this_codes_schema_version(registry):
 def test_a_run_whose_card_cannot_be_written_leaves_no_folder(registry, monkeypatch):
     import errno
 
-    from miktcli.ppo import PPOConfig
+    from miktcli.engine.ppo import PPOConfig
     from miktcli.registry import runs as runs_module
     from miktcli.registry.cards import RunConfig
     from miktcli.registry.runs import Run

@@ -46,7 +46,7 @@ def test_a_study_cell_records_the_grid_s_eval_episodes(registry):
 
 def test_a_resume_may_change_the_update_mode_and_the_card_says_from_which_step(registry, ctrl_c_at_second_update,
                                                                               monkeypatch):
-    from miktcli import ppo
+    from miktcli.engine import ppo
 
     monkeypatch.setattr(ppo, "compiled", lambda loss: loss)  # what is recorded is tested here, not torch.compile
     mikt("teacher", "train", "hopper", "--steps", 6144, "--no-compile", code=1)  # interrupted at 2,048
@@ -58,7 +58,7 @@ def test_a_resume_may_change_the_update_mode_and_the_card_says_from_which_step(r
 
 
 def test_auto_compile_probes_the_compiler_and_a_broken_one_turns_it_off(monkeypatch):
-    from miktcli import compile_choice
+    from miktcli.engine import compile_choice
 
     monkeypatch.setenv("CXX", "/bin/false")
     compile_choice.compiler_works.cache_clear()

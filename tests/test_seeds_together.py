@@ -1,4 +1,4 @@
-"""Seeds together: a cell's seeds trained in one process, their update batched (miktcli.together)."""
+"""Seeds together: a cell's seeds trained in one process, their update batched (miktcli.engine.together)."""
 
 import copy
 import json
@@ -7,11 +7,11 @@ import pytest
 import torch
 
 from helpers import mikt, runs
+from miktcli.engine.policies import GaussianActorCritic
+from miktcli.engine.ppo import PPOConfig, PPOTrainer
+from miktcli.engine.together import SeedsTogether
 from miktcli.envs import make_env
 from miktcli.methods.mikt import MiktActorCritic, MiktConfig
-from miktcli.policies import GaussianActorCritic
-from miktcli.ppo import PPOConfig, PPOTrainer
-from miktcli.together import SeedsTogether
 
 CONFIG = PPOConfig(n_steps=64, minibatch_size=16, epochs=2, kl_coef=0.1)
 

@@ -38,7 +38,7 @@ def test_a_run_that_slows_says_so_in_its_card(registry, monkeypatch):
     from typer.testing import CliRunner
 
     from miktcli.cli.app import app
-    from miktcli.ppo import PPOTrainer
+    from miktcli.engine.ppo import PPOTrainer
     from miktcli.workflows import slowdown
 
     monkeypatch.setattr(slowdown, "WINDOW", 1)

@@ -1,7 +1,7 @@
 import pytest
 
-import miktcli.stats as stats
-from miktcli.stats import compare, permutation_p_value, probability_of_improvement
+import miktcli.stats.pairwise as stats
+from miktcli.stats.pairwise import compare, permutation_p_value, probability_of_improvement
 
 
 def test_probability_of_improvement_counts_seed_pairs_with_ties_half():

@@ -161,7 +161,7 @@ def test_the_section_says_why_numbers_are_missing(registry, tmp_path, measured, 
 
 
 def test_the_random_policy_measurement_is_seeded_and_whole_episodes():
-    from miktcli.random_policy import random_returns
+    from miktcli.engine.random_policy import random_returns
 
     first = random_returns("hopper", episodes=2, seed=3)
     assert first == random_returns("hopper", episodes=2, seed=3)

@@ -16,7 +16,7 @@ runner = CliRunner()
 def seed_one_fails(monkeypatch):
     """Training of every seed-1 run raises in its first update (as a diverged or broken env would); call the
     returned function to let it train again."""
-    from miktcli.ppo import PPOTrainer
+    from miktcli.engine.ppo import PPOTrainer
 
     original = PPOTrainer.update
 

@@ -3,7 +3,7 @@ cover every iteration it trained (issue 37 A)."""
 
 import json
 
-from miktcli.ppo import PPOConfig
+from miktcli.engine.ppo import PPOConfig
 from miktcli.registry.cards import RunConfig
 from miktcli.registry.runs import create_run
 from miktcli.studies.grid import Grid

@@ -12,7 +12,7 @@ ODD = {"return_mean": -8.7e300, "loss_value": math.inf, "approx_kl": math.nan, "
 
 
 def test_a_run_whose_metrics_overflow_float32_trains_to_its_end(registry, monkeypatch):
-    from miktcli.ppo import PPOTrainer
+    from miktcli.engine.ppo import PPOTrainer
 
     original = PPOTrainer.run
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
+from miktcli.engine.policies import GaussianActorCritic
 from miktcli.methods.base import Method, keep_agent
-from miktcli.policies import GaussianActorCritic
 
 
 class ToyConfig(BaseModel):

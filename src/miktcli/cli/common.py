@@ -47,7 +47,7 @@ def parse_ppo_settings(items: list[str] | None) -> dict[str, str]:
 
 
 def ppo_settings_help() -> str:
-    from miktcli.ppo import PPOConfig
+    from miktcli.engine.ppo import PPOConfig
 
     fields = PPOConfig.model_fields
     return "PPO settings (--ppo KEY=VALUE; in a study grid, a method's ppo = { KEY = VALUE }):\n\n" + "\n\n".join(
@@ -81,7 +81,7 @@ RESUME_COMPATIBLE = {"resume", "as_json", "registry", "eval_episodes", "compile_
 def change_update_mode_on_resume(run, compile_loss: bool | None) -> None:
     """`--resume RUN --compile/--no-compile`: the update's mode may change mid-run (the same maths to float
     rounding); the card's compile_reason records from which step."""
-    from miktcli.compile_choice import change_on_resume
+    from miktcli.engine.compile_choice import change_on_resume
 
     ppo = run.card.config.ppo
     if compile_loss is None or compile_loss == ppo.compile_loss:

@@ -81,8 +81,8 @@ def render(
 ) -> None:
     """Render one offscreen frame after a reset (headless, no GPU needed)."""
     from miktcli.envs import make_env
+    from miktcli.envs.frames import render_frame, save_png
     from miktcli.outfiles import prepare_output
-    from miktcli.render import render_frame, save_png
 
     prepare_output(out_path)
     from miktcli.envs.failures import env_failure

@@ -39,8 +39,8 @@ def eval_command(
     as_json: JsonOption = False,
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
+    from miktcli.envs.frames import save_mp4, save_png
     from miktcli.outfiles import prepare_output
-    from miktcli.render import save_mp4, save_png
     from miktcli.workflows.evaluate import evaluate_policy, load_policy
 
     setup_torch()

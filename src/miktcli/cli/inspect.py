@@ -54,8 +54,8 @@ def inspect(
     from miktcli.errors import MiktError
     from miktcli.methods import METHODS
     from miktcli.outfiles import prepare_output
-    from miktcli.plots import png_plot, text_plot
     from miktcli.registry.runs import open_run
+    from miktcli.stats.plots import png_plot, text_plot
 
     reg = registry
     if plot and not (coupling or curve):
@@ -84,8 +84,8 @@ def inspect(
         err.print("Hint: --coupling for the mixing weights, --curve for the learning curve, --json for all.")
         return
     if coupling:
-        from miktcli.mixing import mixing_series
-        from miktcli.plots import png_panels
+        from miktcli.methods.mixing import mixing_series
+        from miktcli.stats.plots import png_panels
 
         names = [t.name for t in run.card.teachers]
         if len(set(names)) < len(names):  # the same teacher in two versions: tell them apart

@@ -26,17 +26,15 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gymnasium as gym
 import mujoco
 import numpy as np
 
 from miktcli import limits
+from miktcli.envs.spec import MjcfSpec
 from miktcli.errors import MiktError
-
-if TYPE_CHECKING:
-    from miktcli.envs.spec import MjcfSpec
 
 # MuJoCo replaces a diverged (NaN/Inf) state with a reset state and counts a warning (as in centipede.py).
 _DIVERGENCE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,

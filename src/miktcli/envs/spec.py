@@ -8,11 +8,9 @@ from __future__ import annotations
 import os
 import re
 import tomllib
-import warnings
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import gymnasium as gym
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -25,7 +23,6 @@ from pydantic import (
 )
 
 from miktcli import limits
-from miktcli.envs.centipede import CentipedeEnv
 from miktcli.errors import MiktError, describe_validation_error
 from miktcli.limits import read_file_bounded
 
@@ -63,10 +60,6 @@ class CentipedeSpec(_SpecBase):
             raise ValueError("crippled_legs has duplicates")
         return self
 
-    def build(self, render_mode: str | None = None) -> gym.Env:
-        return CentipedeEnv(self.legs, self.crippled_legs, max_episode_steps=self.max_episode_steps,
-                            render_mode=render_mode)
-
 
 class GymnasiumSpec(_SpecBase):
     """An environment that gymnasium already ships, made with `gymnasium.make(id, **kwargs)`."""
@@ -85,19 +78,6 @@ class GymnasiumSpec(_SpecBase):
             raise ValueError(f"'{value}': expected a registered gymnasium id such as Ant-v4")
         return value
 
-    def build(self, render_mode: str | None = None) -> gym.Env:
-        with warnings.catch_warnings():
-            # Ant-v4 with contact forces is deprecated upstream but is exactly the paper's Ant-v2 layout (111 dims).
-            warnings.filterwarnings("ignore", message=".*is out of date.*")
-            warnings.filterwarnings("ignore", category=DeprecationWarning)
-            try:
-                return gym.make(self.id, max_episode_steps=self.max_episode_steps, render_mode=render_mode,
-                                disable_env_checker=True, **self.kwargs)
-            except gym.error.Error as err:
-                raise MiktError(f"environment '{self.name}': gymnasium cannot make '{self.id}': {err}") from err
-            except Exception as err:  # noqa: BLE001 - kwargs reach the env's own constructor, which may fail anyhow
-                raise MiktError(f"environment '{self.name}': '{self.id}' fails with these kwargs: "
-                                f"{type(err).__name__}: {err}") from err
 
 
 class MjcfSpec(_SpecBase):
@@ -154,11 +134,6 @@ class MjcfSpec(_SpecBase):
             raise MiktError(f"environment '{self.name}': its xml '{self.xml}' is relative, but the spec was not "
                             "read from a file")
         return self._folder / path
-
-    def build(self, render_mode: str | None = None) -> gym.Env:
-        from miktcli.envs.mjcf import MjcfEnv
-
-        return MjcfEnv(self, render_mode=render_mode)
 
 
 AnySpec = CentipedeSpec | GymnasiumSpec | MjcfSpec

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 from pydantic import BaseModel, ValidationError
 
+from miktcli.engine.policies import ActorCritic, GaussianActorCritic
 from miktcli.errors import MethodOptionError, TeacherCountError, describe_validation_error
-from miktcli.policies import ActorCritic, GaussianActorCritic
 
 # build(obs_dim, act_dim, teacher policies, (pi_hidden, vf_hidden), options) -> the module PPO trains
 Builder = Callable[[int, int, list[GaussianActorCritic], tuple[list[int], list[int]], BaseModel | None], ActorCritic]

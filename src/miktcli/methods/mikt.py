@@ -23,10 +23,11 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from torch import nn
 from torch.nn import functional as F
 
+from miktcli.engine.nets import MLP, ObsNormalizer
+from miktcli.engine.policies import LOG_2PI, TEACHER_FREE, ActorCritic, GaussianActorCritic, gaussian_kl
 from miktcli.errors import MiktError
 from miktcli.methods.base import Method
-from miktcli.nets import MLP, ObsNormalizer
-from miktcli.policies import LOG_2PI, TEACHER_FREE, ActorCritic, GaussianActorCritic, gaussian_kl
+from miktcli.methods.mixing import student_key, teacher_key, teacher_sources
 
 STUDENT_LOGIT_INIT = -0.1  # reference code: p_student starts at softmax([-0.1, 0.01])[0] = 0.4725
 TEACHER_LOGIT_INIT = 0.01
@@ -474,16 +475,15 @@ class MiktActorCritic(ActorCritic):
         out = {"teacher_active": float(self.teacher_active), "coupling_scale": self.coupling_scale}
         for branch, p in (("pi", p_pi), ("vf", p_vf)):
             for j in range(p.shape[0]):
-                out[f"p_{branch}_{j}"] = float(p[j, 0])
+                out[student_key(branch, j)] = float(p[j, 0])
         if len(self.teachers) > 1:
             # the teachers' own weights (one teacher's is 1 − p, so single-teacher metrics stay as they were);
-            # key names: miktcli.mixing
-            sources = mixed_sources(len(self.teachers), self.config.mixing)
-            names = ["shared"] if self.config.mixing == "shared" else [f"t{k}" for k in range(sources)]
+            names = teacher_sources(mixed_sources(len(self.teachers), self.config.mixing),
+                                    shared=self.config.mixing == "shared")
             for branch, p in (("pi", p_pi), ("vf", p_vf)):
                 for j in range(p.shape[0]):
                     for k, name in enumerate(names):
-                        out[f"w_{branch}_{j}_{name}"] = float(p[j, k + 1]) if self.teacher_active else 0.0
+                        out[teacher_key(branch, j, name)] = float(p[j, k + 1]) if self.teacher_active else 0.0
         return out
 
     # --- the teacher-free student -------------------------------------------------------------------

@@ -5,8 +5,8 @@ from __future__ import annotations
 import torch
 from pydantic import BaseModel
 
+from miktcli.engine.policies import GaussianActorCritic
 from miktcli.methods.base import Method, keep_agent
-from miktcli.policies import GaussianActorCritic
 
 
 def mlpp_from_teacher(teacher: GaussianActorCritic, obs_dim: int, act_dim: int) -> GaussianActorCritic:

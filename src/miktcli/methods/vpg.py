@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pydantic import BaseModel
 
+from miktcli.engine.policies import GaussianActorCritic
 from miktcli.methods.base import Method, keep_agent
-from miktcli.policies import GaussianActorCritic
 
 
 def build(obs_dim: int, act_dim: int, teachers: list[GaussianActorCritic],

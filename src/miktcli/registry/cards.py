@@ -12,7 +12,7 @@ from typing import Any, Literal, NamedTuple
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from miktcli import compat
-from miktcli.ppo import PPOConfig
+from miktcli.engine.ppo import PPOConfig
 
 # A card is written with the newest version this code knows; a reader refuses a newer one with a message
 # instead of a validation error about a field it has never heard of. Every version reads every older one.
@@ -229,7 +229,7 @@ class RunCard(BaseModel):
     branched_from: BranchPoint | None = None
     seeds_together: list[str] = Field(
         default_factory=list, description="the runs (this one among them) that trained in one process as one "
-        "batched problem (miktcli.together): the same distribution as training alone, not the same bits; "
+        "batched problem (miktcli.engine.together): the same distribution as training alone, not the same bits; "
         "empty: trained alone")
     # the environment as the run started on it (envs/fingerprint.py); None on cards before schema 4
     env_spec: dict[str, Any] | None = None

@@ -36,9 +36,9 @@ from typing import Any
 import torch
 
 from miktcli import limits
+from miktcli.engine.policies import GaussianActorCritic
 from miktcli.errors import MiktError
 from miktcli.limits import read_file_bounded
-from miktcli.policies import GaussianActorCritic
 
 FORMATS = ("sb3", "cleanrl")
 ACTIVATIONS = ("tanh", "relu")

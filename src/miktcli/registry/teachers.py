@@ -16,8 +16,8 @@ from pathlib import Path
 
 import torch
 
+from miktcli.engine.policies import GaussianActorCritic
 from miktcli.errors import MiktError
-from miktcli.policies import GaussianActorCritic
 from miktcli.registry.cards import TEACHER_SCHEMA_VERSION, TeacherCard, TeacherVersion
 from miktcli.registry.files import read_card, read_tensors, save_with_card, tensors_sha256, verify_sha
 from miktcli.registry.packaged import packaged_teachers

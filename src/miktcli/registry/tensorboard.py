@@ -15,6 +15,8 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from miktcli.methods.mixing import is_mixing_key
+
 _CRC32C_POLY = 0x82F63B78  # Castagnoli, reflected
 
 
@@ -83,7 +85,7 @@ def tag_for(key: str) -> str:
     """TensorBoard groups tags by their prefix: returns, losses, PPO's diagnostics, MIKT's mixing, time."""
     if key.startswith("loss_"):
         return f"loss/{key[5:]}"
-    if key.startswith(("p_", "w_")):  # the student's weights and, with several teachers, the teachers'
+    if is_mixing_key(key):  # the student's weights and, with several teachers, the teachers'
         return f"mixing/{key}"
     if key in ("coupling_scale", "teacher_active"):
         return f"mikt/{key}"

@@ -1,7 +1,7 @@
 """A study's numbers across its pairs (the "Across pairs" section of every report), after Agarwal et al. 2021:
 each completed run's score normalised on its target between the random policy (0) and the grid's baseline
 (1, PPO from scratch at the same budget), then the IQM and mean with 95 % stratified bootstrap intervals, the
-probability of improvement and the performance profiles (miktcli.aggregate does the arithmetic).
+probability of improvement and the performance profiles (miktcli.stats.across_tasks does the arithmetic).
 
 Computed from the study's summary, so results.md, summary.json and the figures show the same numbers. Where
 the section cannot be built (no completed baseline run, a baseline no better than random), it says why in
@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from miktcli import aggregate
 from miktcli.methods import get_method
+from miktcli.stats import across_tasks
 from miktcli.studies.summary import MethodSummary, StudySummary
 
 MEASURES = {"final return": "the mean training return over the last 100 episodes at the end of the run",
@@ -45,15 +45,15 @@ class MethodAggregate:
     name: str
     runs: int
     pairs: int
-    iqm: aggregate.Estimate
-    mean: aggregate.Estimate
+    iqm: across_tasks.Estimate
+    mean: across_tasks.Estimate
 
 
 @dataclass(frozen=True)
 class Improvement:
     x: str
     y: str
-    estimate: aggregate.Estimate  # P(X > Y)
+    estimate: across_tasks.Estimate  # P(X > Y)
     pairs: int
 
 
@@ -116,7 +116,7 @@ def baseline_targets(summary: StudySummary) -> list[str]:
 
 
 def unavailable(summary: StudySummary, why: str, random_source: str = "—",
-                n_resamples: int = aggregate.RESAMPLES) -> AcrossPairs:
+                n_resamples: int = across_tasks.RESAMPLES) -> AcrossPairs:
     """The section of a report that has no numbers, with the reason."""
     grid = summary.grid
     scratch, _, _ = _baseline(summary)
@@ -125,7 +125,7 @@ def unavailable(summary: StudySummary, why: str, random_source: str = "—",
 
 
 def across_pairs(summary: StudySummary, random: Mapping[str, float], random_source: str,
-                 n_resamples: int = aggregate.RESAMPLES) -> AcrossPairs:
+                 n_resamples: int = across_tasks.RESAMPLES) -> AcrossPairs:
     """The section's numbers from the study's summary and each target's random-policy return."""
     grid = summary.grid
     notes: list[str] = []
@@ -194,25 +194,25 @@ def _normalised(summary: StudySummary, measure: str, scale: dict[tuple[str, str]
                 notes.append(f"{pair.name}, {m.name}: {len(values) - len(finite)} run(s) without a {measure} "
                              "(no episode finished) left out")
             if len(finite):
-                scores.setdefault(m.name, {})[pair.name] = aggregate.normalized(finite, rand, ref)
+                scores.setdefault(m.name, {})[pair.name] = across_tasks.normalized(finite, rand, ref)
     order = [m.name for m in summary.grid.methods]  # grid order, whichever pair a method first ran on
     return {name: scores[name] for name in order if name in scores}
 
 
 def _measure(summary: StudySummary, measure: str, scores: Scores, n_resamples: int) -> MeasureAggregate:
     methods = [MethodAggregate(name, sum(len(v) for v in by_pair.values()), len(by_pair),
-                               aggregate.iqm_estimate(by_pair, n_resamples=n_resamples, seed=SEED),
-                               aggregate.mean_estimate(by_pair, n_resamples=n_resamples, seed=SEED))
+                               across_tasks.iqm_estimate(by_pair, n_resamples=n_resamples, seed=SEED),
+                               across_tasks.mean_estimate(by_pair, n_resamples=n_resamples, seed=SEED))
                for name, by_pair in scores.items()]
     names, improvements = list(scores), []
     for i, x in enumerate(names):
         for y in names[i + 1:]:
             shared = [p for p in scores[x] if p in scores[y]]
             if shared:
-                estimate = aggregate.probability_of_improvement_estimate(scores[x], scores[y],
+                estimate = across_tasks.probability_of_improvement_estimate(scores[x], scores[y],
                                                                          n_resamples=n_resamples, seed=SEED)
                 improvements.append(Improvement(x, y, estimate, len(shared)))
-    per_pair = {pair.name: {m: aggregate.iqm({pair.name: scores[m][pair.name]})
+    per_pair = {pair.name: {m: across_tasks.iqm({pair.name: scores[m][pair.name]})
                             for m in names if pair.name in scores[m]} for pair in summary.pairs}
     return MeasureAggregate(measure, methods, improvements, per_pair)
 
@@ -222,7 +222,7 @@ def _profiles(scores: Scores) -> list[Profile]:
     taus = np.linspace(0.0, max(top, 1.0) * 1.05, PROFILE_POINTS)
     profiles = []
     for name, by_pair in scores.items():
-        point, low, high = aggregate.performance_profile_estimate(by_pair, taus, n_resamples=PROFILE_RESAMPLES,
+        point, low, high = across_tasks.performance_profile_estimate(by_pair, taus, n_resamples=PROFILE_RESAMPLES,
                                                                   seed=SEED)
         profiles.append(Profile(name, taus.tolist(), point.tolist(), low.tolist(), high.tolist()))
     return profiles

@@ -10,10 +10,10 @@ from typing import Annotated, Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from miktcli import compat
+from miktcli.engine.ppo import PPOConfig
 from miktcli.errors import MiktError, describe_validation_error
 from miktcli.limits import open_regular
 from miktcli.methods import get_method, transfer_methods
-from miktcli.ppo import PPOConfig
 
 # A grid's size limits. Every cell is a run folder and a line of state.json and results.md; beyond these a
 # grid is a mistake (a seed range typed wrong), and preparing it would take minutes before any cell trains.

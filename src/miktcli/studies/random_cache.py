@@ -2,7 +2,7 @@
 
 `random-returns.json` has the format of benchmarks/results/random-policy.json: `policy`, `code_version`,
 `command` and `targets` (target → episodes, seed, return_mean, return_std, length_mean, returns). A target
-missing from it is measured by the committed protocol (miktcli.random_policy: 100 episodes from seed 0,
+missing from it is measured by the committed protocol (miktcli.engine.random_policy: 100 episodes from seed 0,
 uniform over the action box) and written back atomically, each entry it adds with the code version and the
 study that measured it; entries already there are never measured again.
 """
@@ -14,8 +14,8 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
+from miktcli.engine.random_policy import EPISODES, POLICY, SEED, random_returns
 from miktcli.errors import MiktError
-from miktcli.random_policy import EPISODES, POLICY, SEED, random_returns
 from miktcli.registry.cards import code_version
 from miktcli.registry.files import write_text_atomic
 
@@ -59,11 +59,12 @@ def study_random_returns(folder: Path, targets: list[str], study: str,
     for target in missing:  # written after each: a failure (or Ctrl-C) later keeps what was measured
         entry = measure(target, EPISODES, SEED)
         entry["code_version"] = code_version()
-        entry["measured_by"] = f"the report of study `{study}` (miktcli.random_policy.random_returns)"
+        entry["measured_by"] = f"the report of study `{study}` (miktcli.engine.random_policy.random_returns)"
         data["targets"][target] = entry
         if not data.get("command"):
-            data["command"] = (f"measured by the reports of study `{study}`: miktcli.random_policy.random_returns"
-                               f"(target, episodes={EPISODES}, seed={SEED}) for each target it lacked")
+            data["command"] = (f"measured by the reports of study `{study}`: "
+                               f"miktcli.engine.random_policy.random_returns(target, episodes={EPISODES}, seed={SEED}) "
+                               "for each target it lacked")
         folder.mkdir(parents=True, exist_ok=True)
         write_text_atomic(path, json.dumps(data, indent=1) + "\n")
     return {t: float(data["targets"][t]["return_mean"]) for t in targets}

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from miktcli.plots import png_panels, png_performance_profiles, png_plot
+from miktcli.methods.mixing import is_teacher_key
+from miktcli.stats.plots import png_panels, png_performance_profiles, png_plot
 from miktcli.studies.aggregates import PROFILE_MEASURE, AcrossPairs
 from miktcli.studies.summary import PairSummary, StudySummary, partial_seed_labels
 
@@ -43,7 +44,7 @@ def write_weight_panels(pair: PairSummary, weighted: list, out_dir: Path, seeds:
         series = {key.removeprefix(f"{m.name} "): curve for key, curve in m.weight_curves.items()}
         panels.append((series, f"{m.name}: student weights", None))
         labels.append(partial_seed_labels(dict.fromkeys(series, m.n), seeds))
-    teachers = any(key.startswith("w_") for series, _, _ in panels for key in series)
+    teachers = any(is_teacher_key(key) for series, _, _ in panels for key in series)
     ylabel = "weight (p: the student, w: each teacher)" if teachers else "p (student)"
     return png_panels(panels, out_dir / weights_file(pair), ylabel, labels=labels)
 

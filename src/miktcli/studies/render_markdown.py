@@ -6,9 +6,10 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from miktcli.aggregate import Estimate
+from miktcli.methods.mixing import student_layers
 from miktcli.registry.cards import describe_code_history
 from miktcli.registry.runs import Run
+from miktcli.stats.across_tasks import Estimate
 from miktcli.studies.aggregates import MEASURES, PROFILE_MEASURE, PROFILE_RESAMPLES, SEED, AcrossPairs, MeasureAggregate
 from miktcli.studies.render_figures import PROFILE_FIGURE, SUMMARY_FIGURE, curves_file, draws_summary, weights_file
 from miktcli.studies.summary import MethodSummary, PairSummary, StudySummary, mean_pm_std
@@ -62,8 +63,8 @@ def _method_row(m: MethodSummary, pair: PairSummary, columns: int) -> str:
              for i in pair.marks.values()]
     weights = "—"
     if m.final_weights is not None:
-        pi = "/".join(f"{v:.2f}" for k, v in m.final_weights.items() if k.startswith("p_pi"))
-        vf = "/".join(f"{v:.2f}" for k, v in m.final_weights.items() if k.startswith("p_vf"))
+        pi = "/".join(f"{v:.2f}" for v in student_layers(m.final_weights, "pi"))
+        vf = "/".join(f"{v:.2f}" for v in student_layers(m.final_weights, "vf"))
         weights = f"{pi} · {vf}"
     return (f"| {m.name} | {m.n} | " + " | ".join(cells) + f" | {mean_pm_std(m.mean_over_training)} | "
             f"{mean_pm_std(m.evals)} | {m.reach} | {m.reach_75} | {weights} |")

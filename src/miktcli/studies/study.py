@@ -16,10 +16,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from miktcli import compat
+from miktcli.engine.ppo import PPOConfig
 from miktcli.envs.fingerprint import describe_change, spec_fingerprint
 from miktcli.envs.spec import load_spec
 from miktcli.errors import MiktError
-from miktcli.ppo import PPOConfig
 from miktcli.registry.cards import TeacherRef
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.locks import FileLock, lock_holder

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from miktcli.registry.runs import Run
-from miktcli.stats import compare
+from miktcli.stats.pairwise import compare
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key, file_slug
 from miktcli.studies.handover import HandoverFigures, handover_figures
 

@@ -7,10 +7,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from miktcli.engine.ppo import state_misfit
 from miktcli.envs import load_spec
 from miktcli.errors import MiktError
 from miktcli.methods import get_method
-from miktcli.ppo import state_misfit
 from miktcli.registry.cards import BranchPoint, code_version, package_versions
 from miktcli.registry.runs import Run, create_run, open_run
 from miktcli.registry.teachers import load_run_teachers

@@ -6,12 +6,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import NamedTuple
 
+from miktcli.engine.episodes import evaluate_policy, evaluation_summary  # noqa: F401 - the workflows' names
+from miktcli.engine.policies import ActorCritic
 from miktcli.envs import load_spec
 from miktcli.envs.fingerprint import spec_record
 from miktcli.errors import MiktError
-from miktcli.evaluation import evaluate_policy, evaluation_summary  # noqa: F401 - the workflows' names
 from miktcli.methods import get_method
-from miktcli.policies import ActorCritic
 from miktcli.registry.runs import RUN_TARGET_RE, open_run
 from miktcli.registry.teachers import load_policy_file, load_teacher
 from miktcli.workflows.session import agent_from_checkpoint, check_env_unchanged

@@ -14,14 +14,14 @@ from typing import Any, TypeVar
 import torch
 
 from miktcli import limits
+from miktcli.engine.episodes import evaluation_summary
+from miktcli.engine.policies import TEACHER_FREE, ActorCritic
+from miktcli.engine.ppo import PPOTrainer, complete_state, state_misfit
 from miktcli.envs import load_spec, make_env
 from miktcli.envs.fingerprint import describe_change, spec_fingerprint, spec_record
 from miktcli.errors import MiktError
-from miktcli.evaluation import evaluation_summary
 from miktcli.limits import check_count
 from miktcli.methods import get_method
-from miktcli.policies import TEACHER_FREE, ActorCritic
-from miktcli.ppo import PPOTrainer, complete_state, state_misfit
 from miktcli.registry.cards import CodeSegment, RunConfig, TeacherRef, code_version, now, package_versions
 from miktcli.registry.runs import Run, RunLock, create_run
 from miktcli.registry.teachers import load_run_teachers

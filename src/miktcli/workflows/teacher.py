@@ -8,11 +8,11 @@ from collections.abc import Generator
 from pathlib import Path
 from typing import Any
 
-from miktcli.compile_choice import decide_compile
+from miktcli.engine.compile_choice import decide_compile
+from miktcli.engine.nets import OBS_CLIP
+from miktcli.engine.ppo import PPOConfig
 from miktcli.envs import load_spec
 from miktcli.errors import MiktError
-from miktcli.nets import OBS_CLIP
-from miktcli.ppo import PPOConfig
 from miktcli.registry.cards import RunConfig, TeacherCard, code_version, now, package_versions
 from miktcli.registry.importers import read_foreign_policy
 from miktcli.registry.runs import Run

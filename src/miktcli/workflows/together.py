@@ -1,5 +1,5 @@
 """Transfers of several seeds trained in one process (`mikt transfer --seeds 0-4`, a grid's
-`seeds_together = true`): one run folder per seed as always, one batched update (miktcli.together)."""
+`seeds_together = true`): one run folder per seed as always, one batched update (miktcli.engine.together)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
+from miktcli.engine.together import SeedsTogether
 from miktcli.errors import MiktError
 from miktcli.registry.runs import Run, open_run
-from miktcli.together import SeedsTogether
 from miktcli.workflows.session import Event, Job, Phase
 from miktcli.workflows.transfer import finish_transfer, start_transfer
 

@@ -10,14 +10,15 @@ from typing import Any
 import torch
 
 from miktcli import limits
-from miktcli.compile_choice import decide_compile
+from miktcli.engine.compile_choice import decide_compile
+from miktcli.engine.episodes import evaluation_summary
+from miktcli.engine.policies import GaussianActorCritic
+from miktcli.engine.ppo import PPOConfig
 from miktcli.envs import load_spec
 from miktcli.errors import MiktError, TeacherMismatchError
-from miktcli.evaluation import evaluation_summary
 from miktcli.limits import check_count
 from miktcli.methods import get_method
-from miktcli.policies import GaussianActorCritic
-from miktcli.ppo import PPOConfig
+from miktcli.methods.mixing import is_mixing_key
 from miktcli.registry.cards import RunConfig, TeacherCard, TeacherRef, now
 from miktcli.registry.files import save_with_card, tensors_sha256
 from miktcli.registry.runs import Run
@@ -139,8 +140,8 @@ def save_student(run: Run, student: GaussianActorCritic, final_return: float | N
 
 
 def mixing_weights(agent) -> dict[str, float]:
-    """The student's weights (p_…) and, with several teachers, each teacher's (w_…; see miktcli.mixing)."""
-    return {k: v for k, v in agent.diagnostics().items() if k.startswith(("p_", "w_"))}
+    """The student's weights and, with several teachers, each teacher's (names: miktcli.methods.mixing)."""
+    return {k: v for k, v in agent.diagnostics().items() if is_mixing_key(k)}
 
 
 def finish_transfer(job: Job, episodes: int) -> dict[str, Any]:

@@ -140,7 +140,7 @@ class MLP(nn.Module):
 
     # The hot paths call F.linear on these, skipping nn.Module's call overhead. Read afresh at each call (not
     # kept as references), so that torch.func.functional_call's swapped parameters reach them: the
-    # seeds-together update (miktcli.together) runs every seed's loss through one module that way.
+    # seeds-together update (miktcli.engine.together) runs every seed's loss through one module that way.
     @property
     def layer_params(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
         return [(layer.weight, layer.bias) for layer in self.hidden]

@@ -8,7 +8,7 @@ from collections.abc import Callable
 import torch
 from torch import nn
 
-from miktcli.nets import MLP, ObsNormalizer
+from miktcli.engine.nets import MLP, ObsNormalizer
 
 LOG_2PI = math.log(2.0 * math.pi)
 TEACHER_FREE = "teacher-free"  # the phase in which a transfer method's student runs without its teachers

@@ -10,12 +10,12 @@ import numpy as np
 import torch
 
 from miktcli import limits
+from miktcli.engine.policies import ActorCritic
 from miktcli.envs import make_env
 from miktcli.envs.factory import forward_position
 from miktcli.envs.failures import env_failure
+from miktcli.envs.frames import render_frame
 from miktcli.limits import check_count
-from miktcli.policies import ActorCritic
-from miktcli.render import render_frame
 
 
 @dataclass

@@ -28,7 +28,7 @@ class FlatParameters:
 
     def rebind(self, flat: torch.Tensor, grad: torch.Tensor) -> None:
         """Move the parameters and their gradients into `flat` and `grad` (e.g. one row each of buffers that
-        hold several models, see miktcli.together), values kept; the optimiser's parameter stays the same
+        hold several models, see miktcli.engine.together), values kept; the optimiser's parameter stays the same
         object, so its state and every view stay valid."""
         if flat.shape != self.flat.shape or grad.shape != self.flat.shape or not (flat.is_contiguous()
                                                                                 and grad.is_contiguous()):

@@ -22,12 +22,12 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from miktcli import compat
+from miktcli.engine.flatparams import FlatParameters
+from miktcli.engine.nets import update_moments
+from miktcli.engine.policies import ActorCritic, gaussian_kl, gaussian_log_prob
 from miktcli.envs.mujoco_warnings import mujoco_warning_count
 from miktcli.envs.vector import SyncEnvs
 from miktcli.errors import MiktError
-from miktcli.flatparams import FlatParameters
-from miktcli.nets import update_moments
-from miktcli.policies import ActorCritic, gaussian_kl, gaussian_log_prob
 
 
 class PPOConfig(BaseModel):
@@ -486,7 +486,7 @@ class PPOTrainer:
                 self.observe(batch)
             yield self.end_iteration(lr, stats, losses, t_rollout, time.perf_counter() - t_start - t_rollout)
 
-    # The loop's pieces, which miktcli.together also drives for several trainers in lock step.
+    # The loop's pieces, which miktcli.engine.together also drives for several trainers in lock step.
     def begin_iteration(self) -> float:
         """Place the schedule and the learning rate for the next iteration; returns the learning rate."""
         cfg = self.config

@@ -17,6 +17,37 @@ _TEACHER = re.compile(r"w_(pi|vf)_(\d+)_(t\d+|shared)")
 Series = dict[str, list[tuple[float, float]]]
 
 
+# --- the metric names: built and read only here -------------------------------------------------------
+def student_key(branch: str, layer: int) -> str:
+    """The student's weight in one branch ("pi" or "vf") and hidden layer: `p_pi_0`."""
+    return f"p_{branch}_{layer}"
+
+
+def teacher_key(branch: str, layer: int, source: str) -> str:
+    """One teacher's (source `t0`, `t1`, …) or the shared teachers' (`shared`) weight: `w_pi_0_t1`."""
+    return f"w_{branch}_{layer}_{source}"
+
+
+def teacher_sources(teachers: int, shared: bool) -> list[str]:
+    """The source names a run with this many teachers logs: `shared`, or `t0`, `t1`, …"""
+    return ["shared"] if shared else [f"t{k}" for k in range(teachers)]
+
+
+def is_mixing_key(key: str) -> bool:
+    """A student's or a teacher's mixing weight (the rest of a metrics row is PPO's and MIKT's other terms)."""
+    return _STUDENT.fullmatch(key) is not None or _TEACHER.fullmatch(key) is not None
+
+
+def is_teacher_key(key: str) -> bool:
+    return _TEACHER.fullmatch(key) is not None
+
+
+def student_layers(weights: dict[str, float], branch: str) -> list[float]:
+    """The student's weights of one branch, layer by layer, from a dict of metric names."""
+    found = {int(m.group(2)): v for k, v in weights.items() if (m := _STUDENT.fullmatch(k)) and m.group(1) == branch}
+    return [found[j] for j in sorted(found)]
+
+
 def source_labels(teachers: list[str]) -> dict[str, str]:
     """A label per logged source name (t0, t1, …, shared) for the given teacher names, in card order."""
     labels = {f"t{k}": name for k, name in enumerate(teachers)}

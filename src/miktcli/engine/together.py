@@ -26,7 +26,7 @@ import torch
 from torch import nn
 from torch.func import functional_call, grad, vmap
 
-from miktcli.ppo import Minibatch, PPOTrainer, compiled, flushing_denormals, update_metrics
+from miktcli.engine.ppo import Minibatch, PPOTrainer, compiled, flushing_denormals, update_metrics
 
 
 class _TrainerLoss(nn.Module):

@@ -1,0 +1,1 @@
+"""Statistics over results: pairwise comparisons, aggregates across tasks, and curves as text and PNG."""
