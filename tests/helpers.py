@@ -1,5 +1,6 @@
 """Helpers shared by the test modules, so that no test module imports another: the CLI runner and the strict
-`mikt()` call, spec folders, teacher files rewritten consistently, fake completed runs, import fixtures."""
+`mikt()` call, spec folders, teacher files rewritten consistently, fake completed runs, import fixtures, a small
+grid file."""
 
 import io
 import json
@@ -124,3 +125,11 @@ def robot_with_mesh_and_include(folder):
         '<geom type="sphere" size="0.1"/><body name="leg"><joint name="hip" type="hinge" axis="0 1 0"/>'
         '<geom type="mesh" mesh="foot"/></body></body></worldbody><include file="motors.xml"/></mujoco>')
     return folder / "bot.xml"
+
+
+def vpg_grid(folder, steps=2048, seeds=(0,), extra=""):
+    """A grid file (folder/g.toml) of one pair, x → hopper, and vpg alone; `extra` holds more top-level keys."""
+    grid = folder / "g.toml"
+    grid.write_text(f'name = "g"\nsteps = {steps}\nseeds = {list(seeds)}\n{extra}[[pairs]]\nfrom = ["x"]\n'
+                    'to = "hopper"\n[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+    return grid

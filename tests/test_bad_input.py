@@ -2,7 +2,6 @@
 one-line error (exit 1) or a usage error (exit 2), never an internal error or a silent wrong answer."""
 
 import json
-import os
 import shutil
 
 import pytest
@@ -172,66 +171,7 @@ def test_an_envspecs_override_that_is_not_a_folder_is_an_error(tmp_path, monkeyp
     assert "is not a folder" in mikt("envs", "--json", code=1).output
 
 
-# study grids and state ----------------------------------------------------------------------------------------------
-
-GRID = ('name = "x"\nsteps = 2048\nseeds = [0]\neval_episodes = {episodes}\n[[pairs]]\nfrom = ["a"]\n'
-        'to = "hopper"\n[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
-
-
-def test_grid_files_that_are_binary_or_evaluate_nothing_are_refused(registry, tmp_path):
-    grid = tmp_path / "g.toml"
-    grid.write_bytes(b"\xff\xfe\x00\x01")
-    assert "not a UTF-8 text file" in mikt("study", grid, code=1).output
-    grid.write_text(GRID.format(episodes=0))
-    assert "eval_episodes" in mikt("study", grid, code=1).output
-
-
-def test_a_study_refuses_runs_its_registry_lacks_unless_told_to_retrain(registry, tmp_path):
-    grid = tmp_path / "g.toml"
-    grid.write_text(GRID.format(episodes=1))
-    out = tmp_path / "out"
-    out.mkdir()
-    state = {"->hopper|vpg|0": "run9"}
-    (out / "state.json").write_text(json.dumps(state))
-    r = mikt("study", grid, "--out", out, code=1)
-    assert "names 1 run(s)" in r.output and "run9" in r.output
-    assert json.loads((out / "state.json").read_text()) == state  # untouched
-    mikt("study", grid, "--out", out, "--retrain-missing")
-    assert json.loads((out / "state.json").read_text()) == {"->hopper|vpg|0": "run1"}
-    assert open_run(registry, "run1").card.status == "completed"
-
-
 # found by the second review ---------------------------------------------------------------------------------------
-
-def grid_error(tmp_path, body):
-    from miktcli.errors import MiktError
-    from miktcli.studies.grid import load_grid
-
-    (tmp_path / "g.toml").write_text(body)
-    with pytest.raises(MiktError) as caught:
-        load_grid(tmp_path / "g.toml")
-    return str(caught.value)
-
-
-PAIR = '[[pairs]]\nfrom = ["{t}"]\nto = "hopper"\nlabel = "{label}"\n'
-VPG = '[[methods]]\nname = "{name}"\nmethod = "vpg"\n'
-
-
-@pytest.mark.parametrize(("head", "body", "message"), [
-    ('name = "x"\nsteps = 2048\nseeds = [0]\n', PAIR.format(t="a", label="same") + PAIR.format(t="b", label="same")
-     + VPG.format(name="vpg"), "duplicate pair label: same"),
-    ('name = "x"\nsteps = 2048\nseeds = [0]\nbaseline = "m x"\n', PAIR.format(t="a", label="p")
-     + VPG.format(name="m x") + VPG.format(name="m-x"), "duplicate method name (as a file name): m-x"),
-    ('name = "x"\nsteps = 4096\nseeds = [0]\nmarks = [2048, 99999]\n', PAIR.format(t="a", label="p")
-     + VPG.format(name="vpg"), "mark 99,999 is outside"),
-    ('name = "../../escaped"\nsteps = 2048\nseeds = [0]\n', PAIR.format(t="a", label="p") + VPG.format(name="vpg"),
-     "field 'name'"),
-    ('name = "x"\nsteps = 2048\nseeds = [-1]\n', PAIR.format(t="a", label="p") + VPG.format(name="vpg"),
-     "field 'seeds.0'"),
-])
-def test_grids_whose_reports_would_collide_or_mislead_are_refused(tmp_path, head, body, message):
-    assert message in grid_error(tmp_path, head + body)
-
 
 def test_options_of_another_method_are_refused_not_ignored(registry, tmp_path):
     mikt("teacher", "train", "hopper", *TINY, "--name", "tiny")
@@ -256,23 +196,6 @@ def test_an_empty_or_reversed_coupling_ramp_is_refused(registry):
         with pytest.raises(MiktError, match="bad mikt option"):
             start_transfer(registry, to="hopper", method="mikt", teacher_refs=["tiny"], steps=2048, seed=0,
                            command="test", options=ramp)
-
-
-def test_an_unwritable_study_folder_is_found_before_any_run_exists(registry, tmp_path, monkeypatch):
-    import miktcli.registry.locks as locks
-
-    grid = tmp_path / "g.toml"
-    grid.write_text(GRID.format(episodes=1))
-    out, real_open = tmp_path / "out", locks.os.open
-
-    def no_permission(path, *args):  # as in a folder this user cannot write (the tests may run as root)
-        if os.path.dirname(path) == str(out):
-            raise PermissionError(13, "Permission denied", str(path))
-        return real_open(path, *args)
-
-    monkeypatch.setattr(locks.os, "open", no_permission)
-    assert "cannot write the study's results to" in mikt("study", grid, "--out", out, code=1).output
-    assert not (registry / "runs").exists()
 
 
 def test_a_name_with_a_trailing_newline_is_refused(registry):

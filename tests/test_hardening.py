@@ -232,18 +232,6 @@ def test_discrete_and_non_mujoco_envs_are_refused(tmp_path, monkeypatch):
     assert "fails with these kwargs" in mikt("envs", "show", "kw", code=1).output
 
 
-# 9. study state ---------------------------------------------------------------------------------------------
-
-def test_a_corrupt_study_state_is_a_user_error(registry, tmp_path):
-    grid = tmp_path / "g.toml"
-    grid.write_text('name = "x"\nsteps = 2048\nseeds = [0]\n[[pairs]]\nfrom = ["a"]\nto = "hopper"\n'
-                    '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
-    out = tmp_path / "out"
-    out.mkdir()
-    (out / "state.json").write_text("{truncated")
-    assert "damaged study state" in mikt("study", grid, "--out", out, code=1).output
-
-
 # 10. names -------------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("name", ["", "last", "run3", "latest", "Bad", "a/b", ".hidden"])
@@ -266,24 +254,3 @@ def test_a_resumed_run_ends_exactly_like_an_uninterrupted_one(registry, ctrl_c_a
     resumed = [[m[k] for k in keys] for m in open_run(registry, "run1").read_metrics()]
     straight = [[m[k] for k in keys] for m in open_run(registry, "run2").read_metrics()]
     assert len(straight) == 3 and straight == resumed
-
-
-def test_a_prepared_run_that_never_trained_is_not_started_rather_than_stale(registry):
-    from miktcli.registry.runs import open_run
-    from miktcli.studies.grid import Grid, cell_key
-    from miktcli.studies.study import Study
-    from miktcli.workflows.transfer import start_transfer
-
-    run = start_transfer(registry, to="centipede-four", method="vpg", teacher_refs=[], steps=2048, seed=0,
-                         command="test")
-    assert open_run(registry, run.id).status == "not started"
-    assert "not started" in mikt("runs").output
-    # a cell prepared by mikt 0.2 (marked running) becomes `created` when its study starts again
-    open_run(registry, run.id).save_card(status="running")
-    assert open_run(registry, run.id).status == "not started"
-    grid = Grid.model_validate({"name": "g", "steps": 2048, "seeds": [0], "methods": [{"name": "vpg", "method": "vpg"}],
-                                "pairs": [{"from": ["x"], "to": "centipede-four"}]})
-    study = Study(grid, registry.parent / "out", registry)
-    study._remember(cell_key(*study.plan()[0]), run.id)
-    study.prepare("test")
-    assert open_run(registry, run.id).card.status == "created"

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from helpers import FIXTURE, cleanrl_agent, fixture_with, mikt, sb3_actions
+from helpers import FIXTURE, cleanrl_agent, fixture_with, mikt, runner, sb3_actions
+from miktcli.cli.app import app
 
 
 def test_an_sb3_zip_imports_evaluates_and_transfers(registry, tmp_path):
@@ -152,3 +153,16 @@ def test_a_cleanrl_actor_without_a_hidden_layer_is_refused(registry, tmp_path):
     path = tmp_path / "m.cleanrl_model"
     torch.save(state, path)
     assert "at least one hidden layer" in mikt("teacher", "import", path, "--env", "hopper", code=1).output
+
+
+def test_an_import_that_shadows_a_teacher_says_so(registry):
+    assert runner.invoke(app, ["teacher", "train", "hopper", "--steps", "2048"]).exit_code == 0  # hopper@v1
+    r = runner.invoke(app, ["teacher", "import", str(FIXTURE), "--env", "hopper"])  # the name defaults to the env
+    assert r.exit_code == 1 and "teacher 'hopper' exists already (hopper@v1" in r.output  # never silently
+    r = runner.invoke(app, ["teacher", "import", str(FIXTURE), "--env", "hopper", "--name", "hopper"])  # on purpose
+    assert r.exit_code == 0 and r.stdout.strip() == "hopper@v2", r.output
+    assert ("warning: hopper@v2 (imported from sb3) is now what `hopper` means, in place of hopper@v1 "
+            "(trained by mikt, 2,048 steps)") in r.output
+    assert "name hopper@v1 to keep it, or import under another --name" in r.output
+    r = runner.invoke(app, ["teacher", "import", str(FIXTURE), "--env", "hopper", "--name", "sb3hop"])
+    assert r.exit_code == 0 and "warning" not in r.output  # a new name shadows nothing

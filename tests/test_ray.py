@@ -155,7 +155,7 @@ def test_sigterm_stops_a_ray_study_like_ctrl_c(tmp_path):
             proc.kill()
             proc.communicate()
     assert proc.returncode == 1, stderr
-    assert "interrupted; every cell keeps its last handed-back checkpoint" in stderr, f"stderr:\n{stderr}"
+    assert "interrupted; run1 keeps its last complete checkpoint" in stderr, f"stderr:\n{stderr}"
     assert [open_run(registry, r).status for r in ("run1", "run2")] == ["interrupted", "not started"]
 
 

@@ -1,16 +1,49 @@
-"""Grid sizes are bounded (MAX_GRID_CELLS, MAX_GRID_FILE_BYTES), validated in linear time, and a study's
-cells are prepared without rewriting state.json once per cell (issue 37 D, the study part)."""
+"""Study grid files: what a grid may hold (sizes bounded and validated in linear time, no duplicates, no names
+that collide or escape the study folder, options that validate), every committed grid loads, and a grid's unknown
+teacher or target is found before any cell trains."""
 
-import json
-import shutil
+from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
 
+from helpers import mikt, runner
 from miktcli.cli.app import app
 
-runner = CliRunner()
+GRIDS = Path(__file__).resolve().parents[1] / "benchmarks" / "grids"
 VPG = '[[pairs]]\nfrom = ["x"]\nto = "hopper"\n[[methods]]\nname = "vpg"\nmethod = "vpg"\n'
+
+
+def test_bad_grid_file(registry, tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "x"\nsteps = 10\nseeds = []\n')
+    r = runner.invoke(app, ["study", str(bad)])
+    assert r.exit_code == 1 and "field 'seeds'" in r.output
+
+
+def test_grid_files_that_are_binary_or_evaluate_nothing_are_refused(registry, tmp_path):
+    grid = tmp_path / "g.toml"
+    grid.write_bytes(b"\xff\xfe\x00\x01")
+    assert "not a UTF-8 text file" in mikt("study", grid, code=1).output
+    grid.write_text(EPISODES_GRID.format(episodes=0))
+    assert "eval_episodes" in mikt("study", grid, code=1).output
+
+
+def test_grids_with_duplicate_methods_or_pairs_are_refused(tmp_path):
+    from miktcli.errors import MiktError
+    from miktcli.studies.grid import load_grid
+
+    base = 'name = "x"\nsteps = 2048\nseeds = [0]\n'
+    pair = '[[pairs]]\nfrom = ["a"]\nto = "hopper"\n'
+    vpg = '[[methods]]\nname = "vpg"\nmethod = "vpg"\n'
+    for body, message in ((pair + vpg + vpg, "duplicate method name: vpg"),
+                          (pair + pair + vpg, "duplicate pair: a → hopper")):
+        (tmp_path / "g.toml").write_text(base + body)
+        try:
+            load_grid(tmp_path / "g.toml")
+        except MiktError as err:
+            assert message in str(err)
+        else:
+            raise AssertionError("accepted")
 
 
 def test_a_grid_beyond_the_cell_limit_is_one_line(registry, tmp_path):
@@ -49,66 +82,88 @@ def test_a_grid_file_beyond_the_size_limit_is_refused_without_reading_it_whole(t
         load_grid("/dev/zero")  # endless: refused without reading
 
 
-def study_of(registry, tmp_path, seeds):
-    from miktcli.studies.grid import Grid
+EPISODES_GRID = ('name = "x"\nsteps = 2048\nseeds = [0]\neval_episodes = {episodes}\n[[pairs]]\nfrom = ["a"]\n'
+                 'to = "hopper"\n[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+
+
+def grid_error(tmp_path, body):
+    from miktcli.errors import MiktError
+    from miktcli.studies.grid import load_grid
+
+    (tmp_path / "g.toml").write_text(body)
+    with pytest.raises(MiktError) as caught:
+        load_grid(tmp_path / "g.toml")
+    return str(caught.value)
+
+
+PAIR = '[[pairs]]\nfrom = ["{t}"]\nto = "hopper"\nlabel = "{label}"\n'
+NAMED = '[[methods]]\nname = "{name}"\nmethod = "vpg"\n'
+
+
+@pytest.mark.parametrize(("head", "body", "message"), [
+    ('name = "x"\nsteps = 2048\nseeds = [0]\n', PAIR.format(t="a", label="same") + PAIR.format(t="b", label="same")
+     + NAMED.format(name="vpg"), "duplicate pair label: same"),
+    ('name = "x"\nsteps = 2048\nseeds = [0]\nbaseline = "m x"\n', PAIR.format(t="a", label="p")
+     + NAMED.format(name="m x") + NAMED.format(name="m-x"), "duplicate method name (as a file name): m-x"),
+    ('name = "x"\nsteps = 4096\nseeds = [0]\nmarks = [2048, 99999]\n', PAIR.format(t="a", label="p")
+     + NAMED.format(name="vpg"), "mark 99,999 is outside"),
+    ('name = "../../escaped"\nsteps = 2048\nseeds = [0]\n', PAIR.format(t="a", label="p") + NAMED.format(name="vpg"),
+     "field 'name'"),
+    ('name = "x"\nsteps = 2048\nseeds = [-1]\n', PAIR.format(t="a", label="p") + NAMED.format(name="vpg"),
+     "field 'seeds.0'"),
+])
+def test_grids_whose_reports_would_collide_or_mislead_are_refused(tmp_path, head, body, message):
+    assert message in grid_error(tmp_path, head + body)
+
+
+def test_any_method_without_teachers_is_shared_per_target(monkeypatch, registry, tmp_path):
+    import dataclasses
+
+    from miktcli.methods import METHODS
+    from miktcli.methods.vpg import METHOD as VPG
+    from miktcli.studies.grid import Grid, cell_key
     from miktcli.studies.study import Study
 
-    grid = Grid.model_validate({"name": "g", "steps": 2048, "seeds": list(range(seeds)),
-                                "methods": [{"name": "vpg", "method": "vpg"}],
-                                "pairs": [{"from": ["x"], "to": "hopper"}]})
-    return Study(grid, tmp_path / "out", registry)
+    # a new from-scratch method is known by its Method record (max_teachers = 0), not by its name
+    monkeypatch.setitem(METHODS, "scratch", dataclasses.replace(VPG, name="scratch"))
+    grid = Grid.model_validate({"name": "g", "steps": 2048, "seeds": [0], "baseline": "s",
+                                "methods": [{"name": "s", "method": "scratch"}, {"name": "m", "method": "mlpp"}],
+                                "pairs": [{"from": ["a"], "to": "hopper"}, {"from": ["b"], "to": "hopper"}]})
+    assert [cell_key(*cell) for cell in Study(grid, tmp_path / "out", registry).distinct_cells()] == [
+        "->hopper|s|0", "a>hopper|m|0", "b>hopper|m|0"]
 
 
-def test_preparing_many_cells_does_not_rewrite_state_json_per_cell(registry, tmp_path, monkeypatch):
-    import miktcli.studies.study as study_module
-
-    writes = []
-    real_write = study_module.write_text_atomic
-    monkeypatch.setattr(study_module, "write_text_atomic",
-                        lambda path, text: (writes.append(path), real_write(path, text))[1])
-    monkeypatch.setattr(study_module, "STATE_WRITE_EVERY_S", 3600.0)  # one write at the end, however slow here
-    study = study_of(registry, tmp_path, 40)
-    cells = study.prepare("test")
-    state = json.loads(study.state_path.read_text())
-    assert len(cells) == len(state) == 40 and [run.id for _, run in cells] == [f"run{i}" for i in range(1, 41)]
-    assert writes.count(study.state_path) == 1
+def test_unknown_teacher_is_found_before_any_cell_trains(registry, tmp_path):
+    grid = tmp_path / "g.toml"
+    grid.write_text('name = "x"\nsteps = 2048\nseeds = [0]\n[[pairs]]\nfrom = ["ghost"]\nto = "hopper"\n'
+                    '[[methods]]\nname = "vpg"\nmethod = "vpg"\n[[methods]]\nname = "mikt"\nmethod = "mikt"\n')
+    r = runner.invoke(app, ["study", str(grid), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 1 and "unknown teacher 'ghost'" in r.output
+    assert not (registry / "runs").exists()
 
 
-def test_a_preparation_stopped_part_way_names_the_runs_it_created(registry, tmp_path, monkeypatch):
-    import miktcli.studies.study as study_module
-
-    real_start, made = study_module.start_transfer, []
-
-    def start_then_stop(*args, **kwargs):
-        if len(made) == 5:
-            raise KeyboardInterrupt  # Ctrl-C while the sixth cell's run is being made
-        made.append(real_start(*args, **kwargs))
-        return made[-1]
-
-    monkeypatch.setattr(study_module, "STATE_WRITE_EVERY_S", 3600.0)
-    monkeypatch.setattr(study_module, "start_transfer", start_then_stop)
-    study = study_of(registry, tmp_path, 8)
-    with pytest.raises(KeyboardInterrupt):
-        study.prepare("test")
-    assert sorted(json.loads(study.state_path.read_text()).values()) == sorted(run.id for run in made)
-    monkeypatch.setattr(study_module, "start_transfer", real_start)
-    cells = study_of(registry, tmp_path, 8).prepare("test")  # the next start reuses them, makes the rest
-    assert [run.id for _, run in cells] == [f"run{i}" for i in range(1, 9)]
+def test_an_unknown_target_env_is_an_error_even_for_report_only(registry, tmp_path):
+    """A misspelt target trains nothing; reporting its pair as merely unfinished would hide the typo."""
+    grid = tmp_path / "g.toml"
+    grid.write_text('name = "x"\nsteps = 2048\nseeds = [0]\n[[pairs]]\nfrom = ["t"]\nto = "centipede-nine"\n'
+                    '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+    for args in (["--report-only"], []):
+        r = runner.invoke(app, ["study", str(grid), "--out", str(tmp_path / "o"), *args])
+        assert r.exit_code == 1, r.output
+        assert "pair t → centipede-nine: unknown environment 'centipede-nine'" in r.output
+    assert not (tmp_path / "o").exists() and not (registry / "runs").exists()
 
 
-def test_run_ids_stay_in_order_when_another_process_made_runs_meanwhile(registry):
-    from miktcli.registry.runs import runs_dir
-    from miktcli.workflows.transfer import start_transfer
+def test_every_committed_grid_loads_and_its_options_validate():
+    from miktcli.methods import get_method
+    from miktcli.studies.grid import load_grid
+    from miktcli.studies.study import Study
 
-    def new():
-        return start_transfer(registry, to="hopper", method="vpg", teacher_refs=[], steps=2048, seed=0,
-                              command="test").id
-
-    assert new() == "run1"
-    (runs_dir(registry) / "run2").mkdir()  # as another process would
-    (runs_dir(registry) / "run3").mkdir()
-    assert new() == "run4"
-    shutil.rmtree(runs_dir(registry) / "run4")
-    (runs_dir(registry) / "run3").rmdir()
-    (runs_dir(registry) / "run2").rmdir()
-    assert new() == "run2"  # the runs this process made last are gone: the folder is listed again
+    grids = sorted(GRIDS.glob("*.toml"))
+    assert any(g.name == "multi-screen.toml" for g in grids)
+    for path in grids:
+        grid = load_grid(path)
+        for method in grid.methods:  # what the study does before the first cell: an unknown option fails here
+            get_method(method.method).parse_options(method.options)
+        if grid.name == "multi-screen":
+            assert len(Study(grid, Path("/nonexistent"), Path("/nonexistent")).distinct_cells()) <= 16

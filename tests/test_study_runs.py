@@ -1,15 +1,28 @@
+"""Running a study: its cells are prepared once (state.json written in batches, a preparation stopped part way
+resumed), trained, resumed without redoing anything, and checked against the runs they name; a failing cell does not
+stop the others; one driver per study folder; `--address` without a Ray cluster is one line."""
+
+import importlib.util
 import json
-import warnings
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
 from pathlib import Path
 
-from typer.testing import CliRunner
+import pytest
 
-from helpers import fake_run
+from helpers import fake_run, mikt, runner, vpg_grid
 from miktcli.cli.app import app
 from miktcli.registry.cards import code_version
+from miktcli.registry.runs import open_run
 
-runner = CliRunner()
 GRID = Path(__file__).resolve().parents[1] / "benchmarks" / "grids" / "tiny.toml"
+SRC = Path(__file__).resolve().parents[1] / "src"
+needs_ray = pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="ray is not installed")
 
 
 def test_study_runs_resumes_and_reports(registry, tmp_path):
@@ -28,194 +41,6 @@ def test_study_runs_resumes_and_reports(registry, tmp_path):
     r = runner.invoke(app, ["study", str(GRID), "--out", str(out)])
     assert r.exit_code == 0 and "start" not in r.output and "4/4" in r.output
     assert json.loads((out / "state.json").read_text()) == state
-
-
-def test_bad_grid_file(registry, tmp_path):
-    bad = tmp_path / "bad.toml"
-    bad.write_text('name = "x"\nsteps = 10\nseeds = []\n')
-    r = runner.invoke(app, ["study", str(bad)])
-    assert r.exit_code == 1 and "field 'seeds'" in r.output
-
-
-def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
-    from miktcli.studies.grid import cell_key, load_grid
-    from miktcli.studies.study import Study
-
-    grid_file = tmp_path / "g.toml"
-    grid_file.write_text(
-        'name = "hand"\nsteps = 6144\nseeds = [0, 1]\nmarks = [4000, 6144]\nbaseline = "vpg"\n'
-        '[[pairs]]\nfrom = ["a"]\nto = "hopper"\n[[pairs]]\nfrom = ["b"]\nto = "hopper"\n'
-        '[[methods]]\nname = "mikt"\nmethod = "mikt"\n[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
-    grid = load_grid(grid_file)
-    study = Study(grid, tmp_path / "out", registry)
-    # vpg is shared by both pairs (same target): one run per seed, not one per pair
-    assert len(study.distinct_cells()) == 2 * 2 + 2
-    mix = {"p_pi_0": 0.9, "p_vf_0": 0.8}
-    cells = {
-        ("a", "mikt", 0): fake_run(registry, "hopper", "mikt", 0, [-10, -4, 2], 10, mix, teachers=["a"]),
-        ("a", "mikt", 1): fake_run(registry, "hopper", "mikt", 1, [-6, -2, 6], 20, mix, teachers=["a"]),
-        ("-", "vpg", 0): fake_run(registry, "hopper", "vpg", 0, [-12, -10, -6], 5),
-        ("-", "vpg", 1): fake_run(registry, "hopper", "vpg", 1, [-8, -6, -2], 7),
-    }
-    pair_a = grid.pairs[0]
-    methods = {m.name: m for m in grid.methods}
-    for (_source, method, seed), run_id in cells.items():
-        study._remember(cell_key(pair_a, methods[method], seed), run_id)
-    from miktcli.registry.runs import open_run
-    unfinished = fake_run(registry, "hopper", "mikt", 0, [-3, -2, -1], 0, teachers=["b"])
-    open_run(registry, unfinished).save_card(status="created", steps_done=0, result={})  # prepared, never trained
-    study._remember(cell_key(grid.pairs[1], methods["mikt"], 0), unfinished)
-    study.report()
-    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
-    mikt, vpg = summary["a → hopper"]["mikt"], summary["a → hopper"]["vpg"]
-    assert summary["b → hopper"]["vpg"]["runs"] == vpg["runs"]  # the shared baseline
-    assert "mikt" not in summary["b → hopper"]
-    # marks: 4000 reports the iteration at 2048 (the last at or before it), 6144 the last
-    assert mikt["marks"] == {"2048": {"mean": -8.0, "std": 2 ** 0.5 * 2}, "6144": {"mean": 4.0, "std": 2 ** 0.5 * 2}}
-    assert vpg["final_train_mean"] == -4.0 and vpg["final_eval_std"] == 2 ** 0.5
-    # area under the curve: per-seed means (-4, -2/3) then mean and sample std over seeds
-    assert abs(mikt["mean_over_training"] - (-4 - 2 / 3) / 2) < 1e-9
-    # vpg final = -4 ≤ 0: ¾ of it is -5 (a quarter of |final| below), which mikt's mean curve
-    # (-8, -3, 4) first reaches at 4096; vpg's own (-10, -8, -4) at 6144
-    assert mikt["steps_to_three_quarters_of_baseline_final"] == "4,096"
-    assert mikt["steps_to_baseline_final"] == "4,096"
-    assert vpg["steps_to_three_quarters_of_baseline_final"] == "6,144"
-    table = (tmp_path / "out" / "results.md").read_text()
-    assert "![every pair](summary.png)" in table and (tmp_path / "out" / "summary.png").exists()
-    assert "| method | n | 2,048 | 6,144 |" in table
-    assert "| mikt | 2 | -8 ± 3 | 4 ± 3 |" in table
-    # mikt against vpg over seeds: finals (2, 6) vs (-6, -2); of the 6 splits of the pooled four, {2, 6} and
-    # {-6, -2} differ by 8, so p = 2/6, which is also the floor for 2 against 2
-    assert "| mikt vs vpg | 2 / 2 | final return | +8 | 1.00 | 0.333 | 0.333 |" in table
-    # final evals (10, 20) vs (5, 7): mean difference 9
-    assert "| mikt vs vpg | 2 / 2 | final eval (no teacher) | +9 | 1.00 | 0.333 | 0.333 |" in table
-    # the run table: each run's state and final numbers (these fake runs record no final train return)
-    assert f"| a>hopper | mikt | 1 | {cells[('a', 'mikt', 1)]} | completed | — | 20 | — |" in table
-    assert f"| b>hopper | mikt | 0 | {unfinished} | not started, 0/6,144 | — | — | — |" in table
-    compared = json.loads((tmp_path / "out" / "comparisons.json").read_text())
-    assert compared["b → hopper"] == []  # only vpg ran there: nothing to compare
-    assert [(r["a"], r["b"], r["measure"]) for r in compared["a → hopper"]] == [
-        ("mikt", "vpg", "final return"), ("mikt", "vpg", "mean over training"),
-        ("mikt", "vpg", "final eval (no teacher)")]
-
-
-def test_several_methods_weights_are_drawn_one_panel_per_method(monkeypatch, registry, tmp_path):
-    """A screening of many multi-teacher methods drew every weight of every method on one set of axes
-    (96 curves; tight_layout gave up with a warning): now each method has its panel, weights named alone."""
-    from miktcli.studies import render_figures
-    from miktcli.studies.grid import cell_key, load_grid
-    from miktcli.studies.study import Study
-
-    grid_file = tmp_path / "g.toml"
-    grid_file.write_text('name = "w"\nsteps = 6144\nseeds = [0, 1]\nbaseline = "a"\n[[pairs]]\nfrom = ["x", "y"]\n'
-                         'to = "hopper"\n[[methods]]\nname = "a"\nmethod = "mikt"\n'
-                         '[[methods]]\nname = "b"\nmethod = "mikt"\n')
-    study = Study(load_grid(grid_file), tmp_path / "out", registry)
-    mix = {"p_pi_0": 0.5, "w_pi_0_t0": 0.3, "w_pi_0_t1": 0.2}
-    for pair, method, seed in study.plan()[:3]:  # b has one seed of two
-        study._remember(cell_key(pair, method, seed),
-                        fake_run(registry, "hopper", "mikt", seed, [1, 2, 3], 5, mix, teachers=["x", "y"]))
-    drawn = []
-    real = render_figures.png_panels
-    monkeypatch.setattr(render_figures, "png_panels",
-                        lambda panels, path, ylabel, **kw: drawn.append((panels, path, ylabel, kw))
-                        or real(panels, path, ylabel, **kw))
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # no layout warning
-        study.report()
-    (panels, path, ylabel, kw), = drawn
-    assert path.name.startswith("weights-") and path.exists()
-    assert [title for _, title, _ in panels] == ["a: student weights", "b: student weights"]
-    assert all(sorted(series) == ["p_pi_0", "w_pi_0_t0", "w_pi_0_t1"] for series, _, _ in panels)
-    assert ylabel == "weight (p: the student, w: each teacher)"
-    assert kw["labels"][0] == {} and kw["labels"][1]["p_pi_0"] == "p_pi_0 (1 of 2 seeds)"
-
-
-def test_completed_runs_with_incomplete_files_are_left_out_and_named(registry, tmp_path):
-    from miktcli.registry.runs import open_run
-    from miktcli.studies.grid import Grid
-    from miktcli.studies.study import Study
-
-    grid = Grid.model_validate({"name": "g", "steps": 6144, "seeds": [0, 1, 2], "marks": [2048, 6144],
-                                "methods": [{"name": "vpg", "method": "vpg"}],
-                                "pairs": [{"from": ["x"], "to": "hopper"}]})
-    study = Study(grid, tmp_path / "out", registry)
-    ids = [fake_run(registry, "hopper", "vpg", seed, [10, 20, 30 + seed], 5) for seed in range(3)]
-    for seed, run_id in enumerate(ids):
-        study._remember(f"->hopper|vpg|{seed}", run_id)
-    truncated = open_run(registry, ids[1])
-    truncated.metrics_path.write_text(truncated.metrics_path.read_text().splitlines(keepends=True)[0])
-    no_eval = open_run(registry, ids[2])
-    no_eval.save_card(result={})
-    report = study.report()
-    assert report.left_out == [f"{ids[1]}: metrics.jsonl ends at 2,048 steps, the run trained 6,144",
-                               f"{ids[2]}: its card has no teacher-free eval result"]
-    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
-    assert summary["x → hopper"]["vpg"]["runs"] == [ids[0]]  # the intact run alone, its curve whole
-    assert summary["x → hopper"]["vpg"]["marks"] == {"2048": {"mean": 10.0, "std": None},
-                                                     "6144": {"mean": 30.0, "std": None}}
-    assert "Completed runs left out" in (tmp_path / "out" / "results.md").read_text()
-    truncated.metrics_path.write_text("")  # nothing at all: still a named problem, not a crash
-    assert study.report().left_out[0] == f"{ids[1]}: metrics.jsonl is empty, the run trained 6,144"
-
-
-def test_a_pair_without_finished_runs_names_the_same_mark_columns(registry, tmp_path):
-    from miktcli.studies.grid import Grid
-    from miktcli.studies.study import Study
-
-    grid = Grid.model_validate({"name": "g", "steps": 6144, "seeds": [0], "marks": [4000, 6144],
-                                "methods": [{"name": "vpg", "method": "vpg"}],
-                                "pairs": [{"from": ["x"], "to": "hopper"}, {"from": ["y"], "to": "ant"}]})
-    study = Study(grid, tmp_path / "out", registry)
-    study._remember("->hopper|vpg|0", fake_run(registry, "hopper", "vpg", 0, [10, 20, 30], 5))
-    study.report()
-    table = (tmp_path / "out" / "results.md").read_text()
-    # 4000 is logged at 2048 (the last iteration at or before it): the empty ant table says so too
-    assert table.count("| method | n | 2,048 | 6,144 |") == 2 and "4,000" not in table
-
-
-def test_any_method_without_teachers_is_shared_per_target(monkeypatch, registry, tmp_path):
-    import dataclasses
-
-    from miktcli.methods import METHODS
-    from miktcli.methods.vpg import METHOD as VPG
-    from miktcli.studies.grid import Grid, cell_key
-    from miktcli.studies.study import Study
-
-    # a new from-scratch method is known by its Method record (max_teachers = 0), not by its name
-    monkeypatch.setitem(METHODS, "scratch", dataclasses.replace(VPG, name="scratch"))
-    grid = Grid.model_validate({"name": "g", "steps": 2048, "seeds": [0], "baseline": "s",
-                                "methods": [{"name": "s", "method": "scratch"}, {"name": "m", "method": "mlpp"}],
-                                "pairs": [{"from": ["a"], "to": "hopper"}, {"from": ["b"], "to": "hopper"}]})
-    assert [cell_key(*cell) for cell in Study(grid, tmp_path / "out", registry).distinct_cells()] == [
-        "->hopper|s|0", "a>hopper|m|0", "b>hopper|m|0"]
-
-
-def test_grids_with_duplicate_methods_or_pairs_are_refused(tmp_path):
-    from miktcli.errors import MiktError
-    from miktcli.studies.grid import load_grid
-
-    base = 'name = "x"\nsteps = 2048\nseeds = [0]\n'
-    pair = '[[pairs]]\nfrom = ["a"]\nto = "hopper"\n'
-    vpg = '[[methods]]\nname = "vpg"\nmethod = "vpg"\n'
-    for body, message in ((pair + vpg + vpg, "duplicate method name: vpg"),
-                          (pair + pair + vpg, "duplicate pair: a → hopper")):
-        (tmp_path / "g.toml").write_text(base + body)
-        try:
-            load_grid(tmp_path / "g.toml")
-        except MiktError as err:
-            assert message in str(err)
-        else:
-            raise AssertionError("accepted")
-
-
-def test_unknown_teacher_is_found_before_any_cell_trains(registry, tmp_path):
-    grid = tmp_path / "g.toml"
-    grid.write_text('name = "x"\nsteps = 2048\nseeds = [0]\n[[pairs]]\nfrom = ["ghost"]\nto = "hopper"\n'
-                    '[[methods]]\nname = "vpg"\nmethod = "vpg"\n[[methods]]\nname = "mikt"\nmethod = "mikt"\n')
-    r = runner.invoke(app, ["study", str(grid), "--out", str(tmp_path / "o")])
-    assert r.exit_code == 1 and "unknown teacher 'ghost'" in r.output
-    assert not (registry / "runs").exists()
 
 
 def test_a_cell_whose_run_id_now_names_another_run_is_an_error_not_a_result(registry, tmp_path):
@@ -257,6 +82,128 @@ def test_a_run_recording_the_budget_as_asked_still_is_its_cell_and_a_wrong_budge
     assert "| vpg | 1 |" in (tmp_path / "out" / "results.md").read_text()
 
 
+def test_a_study_refuses_runs_its_registry_lacks_unless_told_to_retrain(registry, tmp_path):
+    grid = vpg_grid(tmp_path, extra="eval_episodes = 1\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    state = {"->hopper|vpg|0": "run9"}
+    (out / "state.json").write_text(json.dumps(state))
+    r = mikt("study", grid, "--out", out, code=1)
+    assert "names 1 run(s)" in r.output and "run9" in r.output
+    assert json.loads((out / "state.json").read_text()) == state  # untouched
+    mikt("study", grid, "--out", out, "--retrain-missing")
+    assert json.loads((out / "state.json").read_text()) == {"->hopper|vpg|0": "run1"}
+    assert open_run(registry, "run1").card.status == "completed"
+
+
+def test_a_corrupt_study_state_is_a_user_error(registry, tmp_path):
+    grid = tmp_path / "g.toml"
+    grid.write_text('name = "x"\nsteps = 2048\nseeds = [0]\n[[pairs]]\nfrom = ["a"]\nto = "hopper"\n'
+                    '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "state.json").write_text("{truncated")
+    assert "damaged study state" in mikt("study", grid, "--out", out, code=1).output
+
+
+def test_an_unwritable_study_folder_is_found_before_any_run_exists(registry, tmp_path, monkeypatch):
+    import miktcli.registry.locks as locks
+
+    grid = vpg_grid(tmp_path, extra="eval_episodes = 1\n")
+    out, real_open = tmp_path / "out", locks.os.open
+
+    def no_permission(path, *args):  # as in a folder this user cannot write (the tests may run as root)
+        if os.path.dirname(path) == str(out):
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_open(path, *args)
+
+    monkeypatch.setattr(locks.os, "open", no_permission)
+    assert "cannot write the study's results to" in mikt("study", grid, "--out", out, code=1).output
+    assert not (registry / "runs").exists()
+
+
+def test_the_ray_progress_overview_counts_cells_and_estimates_the_end():
+    from miktcli.cli.study_progress import overview
+    from miktcli.studies.executor import CellEvent
+
+    cells = [CellEvent("a", "run1", 100, steps=100, state="completed"),
+             CellEvent("b", "run2", 100, steps=40, steps_per_sec=5.0, state="training"),
+             CellEvent("c", "run3", 100, steps=0, steps_per_sec=5.0, state="training"),
+             CellEvent("d", "run4", 100, steps=0, state="queued"),
+             CellEvent("e", "run5", 100, steps=10, state="failed")]
+    # 3 finished before this driver started + run1; 60 + 100 + 100 steps left at 10 steps/s together
+    assert overview(cells, finished_before=3) == (
+        "4/8 cells completed, 2 training, 1 failed; 260 steps to go, about 0:00:26 at the current 10 steps/s")
+    assert overview(cells[:1], finished_before=0) == "1/1 cells completed, 0 training; 0 steps to go"
+
+
+# preparing cells ---------------------------------------------------------------------------------------------------
+
+def study_of(registry, tmp_path, seeds):
+    from miktcli.studies.grid import Grid
+    from miktcli.studies.study import Study
+
+    grid = Grid.model_validate({"name": "g", "steps": 2048, "seeds": list(range(seeds)),
+                                "methods": [{"name": "vpg", "method": "vpg"}],
+                                "pairs": [{"from": ["x"], "to": "hopper"}]})
+    return Study(grid, tmp_path / "out", registry)
+
+
+def test_preparing_many_cells_does_not_rewrite_state_json_per_cell(registry, tmp_path, monkeypatch):
+    import miktcli.studies.study as study_module
+
+    writes = []
+    real_write = study_module.write_text_atomic
+    monkeypatch.setattr(study_module, "write_text_atomic",
+                        lambda path, text: (writes.append(path), real_write(path, text))[1])
+    monkeypatch.setattr(study_module, "STATE_WRITE_EVERY_S", 3600.0)  # one write at the end, however slow here
+    study = study_of(registry, tmp_path, 40)
+    cells = study.prepare("test")
+    state = json.loads(study.state_path.read_text())
+    assert len(cells) == len(state) == 40 and [run.id for _, run in cells] == [f"run{i}" for i in range(1, 41)]
+    assert writes.count(study.state_path) == 1
+
+
+def test_a_preparation_stopped_part_way_names_the_runs_it_created(registry, tmp_path, monkeypatch):
+    import miktcli.studies.study as study_module
+
+    real_start, made = study_module.start_transfer, []
+
+    def start_then_stop(*args, **kwargs):
+        if len(made) == 5:
+            raise KeyboardInterrupt  # Ctrl-C while the sixth cell's run is being made
+        made.append(real_start(*args, **kwargs))
+        return made[-1]
+
+    monkeypatch.setattr(study_module, "STATE_WRITE_EVERY_S", 3600.0)
+    monkeypatch.setattr(study_module, "start_transfer", start_then_stop)
+    study = study_of(registry, tmp_path, 8)
+    with pytest.raises(KeyboardInterrupt):
+        study.prepare("test")
+    assert sorted(json.loads(study.state_path.read_text()).values()) == sorted(run.id for run in made)
+    monkeypatch.setattr(study_module, "start_transfer", real_start)
+    cells = study_of(registry, tmp_path, 8).prepare("test")  # the next start reuses them, makes the rest
+    assert [run.id for _, run in cells] == [f"run{i}" for i in range(1, 9)]
+
+
+def test_run_ids_stay_in_order_when_another_process_made_runs_meanwhile(registry):
+    from miktcli.registry.runs import runs_dir
+    from miktcli.workflows.transfer import start_transfer
+
+    def new():
+        return start_transfer(registry, to="hopper", method="vpg", teacher_refs=[], steps=2048, seed=0,
+                              command="test").id
+
+    assert new() == "run1"
+    (runs_dir(registry) / "run2").mkdir()  # as another process would
+    (runs_dir(registry) / "run3").mkdir()
+    assert new() == "run4"
+    shutil.rmtree(runs_dir(registry) / "run4")
+    (runs_dir(registry) / "run3").rmdir()
+    (runs_dir(registry) / "run2").rmdir()
+    assert new() == "run2"  # the runs this process made last are gone: the folder is listed again
+
+
 def test_a_study_start_turns_never_trained_running_or_interrupted_cells_into_created(registry, tmp_path):
     from miktcli.registry.runs import open_run
     from miktcli.studies.grid import load_grid
@@ -274,43 +221,226 @@ def test_a_study_start_turns_never_trained_running_or_interrupted_cells_into_cre
     assert [open_run(registry, r.id).card.status for r in runs] == ["created", "created", "interrupted"]
 
 
-def test_the_ray_progress_overview_counts_cells_and_estimates_the_end():
-    from miktcli.cli.study import _overview
-    from miktcli.studies.ray_executor import CellProgress
+def test_a_prepared_run_that_never_trained_is_not_started_rather_than_stale(registry):
+    from miktcli.registry.runs import open_run
+    from miktcli.studies.grid import Grid, cell_key
+    from miktcli.studies.study import Study
+    from miktcli.workflows.transfer import start_transfer
 
-    cells = [CellProgress("a", "run1", 100, steps=100, state="completed"),
-             CellProgress("b", "run2", 100, steps=40, steps_per_sec=5.0, state="training"),
-             CellProgress("c", "run3", 100, steps=0, steps_per_sec=5.0, state="training"),
-             CellProgress("d", "run4", 100, steps=0, state="queued"),
-             CellProgress("e", "run5", 100, steps=10, state="failed")]
-    # 3 finished before this driver started + run1; 60 + 100 + 100 steps left at 10 steps/s together
-    assert _overview(cells, finished_before=3) == (
-        "4/8 cells completed, 2 training, 1 failed; 260 steps to go, about 0:00:26 at the current 10 steps/s")
-    assert _overview(cells[:1], finished_before=0) == "1/1 cells completed, 0 training; 0 steps to go"
-
-
-def test_an_unknown_target_env_is_an_error_even_for_report_only(registry, tmp_path):
-    """A misspelt target trains nothing; reporting its pair as merely unfinished would hide the typo."""
-    grid = tmp_path / "g.toml"
-    grid.write_text('name = "x"\nsteps = 2048\nseeds = [0]\n[[pairs]]\nfrom = ["t"]\nto = "centipede-nine"\n'
-                    '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
-    for args in (["--report-only"], []):
-        r = runner.invoke(app, ["study", str(grid), "--out", str(tmp_path / "o"), *args])
-        assert r.exit_code == 1, r.output
-        assert "pair t → centipede-nine: unknown environment 'centipede-nine'" in r.output
-    assert not (tmp_path / "o").exists() and not (registry / "runs").exists()
+    run = start_transfer(registry, to="centipede-four", method="vpg", teacher_refs=[], steps=2048, seed=0,
+                         command="test")
+    assert open_run(registry, run.id).status == "not started"
+    assert "not started" in mikt("runs").output
+    # a cell prepared by mikt 0.2 (marked running) becomes `created` when its study starts again
+    open_run(registry, run.id).save_card(status="running")
+    assert open_run(registry, run.id).status == "not started"
+    grid = Grid.model_validate({"name": "g", "steps": 2048, "seeds": [0], "methods": [{"name": "vpg", "method": "vpg"}],
+                                "pairs": [{"from": ["x"], "to": "centipede-four"}]})
+    study = Study(grid, registry.parent / "out", registry)
+    study._remember(cell_key(*study.plan()[0]), run.id)
+    study.prepare("test")
+    assert open_run(registry, run.id).card.status == "created"
 
 
-def test_every_committed_grid_loads_and_its_options_validate():
-    from miktcli.methods import get_method
+# a failing cell ----------------------------------------------------------------------------------------------------
+
+@pytest.fixture()
+def seed_one_fails(monkeypatch):
+    """Training of every seed-1 run raises in its first update (as a diverged or broken env would); call the
+    returned function to let it train again."""
+    from miktcli.engine.ppo import PPOTrainer
+
+    original = PPOTrainer.update
+
+    def update(self, batch):
+        if self.seed == 1:
+            raise RuntimeError("the simulation diverged")
+        return original(self, batch)
+
+    monkeypatch.setattr(PPOTrainer, "update", update)
+    return lambda: monkeypatch.setattr(PPOTrainer, "update", original)
+
+
+def failing_grid(tmp_path, steps=2048):
+    return vpg_grid(tmp_path, steps, seeds=(0, 1, 2), extra="eval_episodes = 1\n")
+
+
+def test_a_serial_study_carries_on_past_a_failing_cell_and_reports_it(registry, tmp_path, seed_one_fails):
+    grid, out = failing_grid(tmp_path), tmp_path / "out"
+    r = runner.invoke(app, ["study", str(grid), "--out", str(out)])
+    assert r.exit_code == 1, r.output
+    state = json.loads((out / "state.json").read_text())
+    assert [open_run(registry, state[f"->hopper|vpg|{s}"]).card.status for s in range(3)] == [
+        "completed", "failed", "completed"]  # the cell after the failing one trained too
+    failed = state["->hopper|vpg|1"]
+    assert f"Error: ->hopper|vpg|1: {failed} failed: RuntimeError: the simulation diverged" in r.output
+    assert "Error: 1 cell(s) failed; the others are reported" in r.output
+    table = (out / "results.md").read_text()
+    assert "| vpg | 2 |" in table  # the two completed seeds
+    assert (f"**Failed cells** (their runs stopped with an error; running the study again retries them):\n\n"
+            f"- ->hopper|vpg|1: {failed}: RuntimeError: the simulation diverged") in table
+
+    # a rerun retries the failed cell (still failing here) and reports again; nothing else is redone
+    r = runner.invoke(app, ["study", str(grid), "--out", str(out)])
+    assert r.exit_code == 1 and f"->hopper|vpg|1: start {failed}" in r.output, r.output
+    assert "1 cell(s) failed" in r.output and json.loads((out / "state.json").read_text()) == state
+
+    seed_one_fails()  # the cause is gone: the rerun trains the failed cell and the report is whole
+    r = runner.invoke(app, ["study", str(grid), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert open_run(registry, failed).card.status == "completed"
+    table = (out / "results.md").read_text()
+    assert "| vpg | 3 |" in table and "Failed cells" not in table
+
+
+def test_a_failing_cell_does_not_stop_the_cells_after_it_on_a_rerun(registry, tmp_path, seed_one_fails):
+    """mikt 0.2 stopped at the first failing cell, and every rerun failed on it again: later cells never
+    trained. Here only the cells up to the failing one exist when the rerun starts."""
+    from miktcli.studies.executor import Driver
+    from miktcli.studies.grid import load_grid
+    from miktcli.studies.serial import SerialExecutor
+    from miktcli.studies.study import Study
+
+    study = Study(load_grid(failing_grid(tmp_path)), tmp_path / "out", registry)
+    trained = []
+
+    def train(cell_runs):
+        (run,) = cell_runs  # one run a cell: the grid trains seeds alone
+        trained.append(run.card.seed)
+        if run.card.seed == 1:
+            run.save_card(status="failed", error="ValueError: bad")
+            raise ValueError("bad")
+        run.save_card(status="completed", steps_done=run.card.total_steps)
+
+    events = [(e.key, e.state) for e in Driver(study, SerialExecutor(train), "test").events()]
+    assert trained == [0, 1, 2]
+    assert events == [("->hopper|vpg|0", "training"), ("->hopper|vpg|0", "completed"),
+                      ("->hopper|vpg|1", "training"), ("->hopper|vpg|1", "failed"),
+                      ("->hopper|vpg|2", "training"), ("->hopper|vpg|2", "completed")]
+    trained.clear()
+    events = [(e.key, e.state) for e in Driver(study, SerialExecutor(train), "test").events()]
+    assert trained == [1] and ("->hopper|vpg|1", "failed") in events and ("->hopper|vpg|2", "done") in events
+
+
+def test_ctrl_c_in_a_serial_study_names_the_study_command(registry, tmp_path, ctrl_c_at_second_update):
+    grid, out = failing_grid(tmp_path, steps=4096), tmp_path / "out"
+    r = runner.invoke(app, ["study", str(grid), "--out", str(out)])
+    assert r.exit_code == 1, r.output
+    assert "Error: interrupted; run1 keeps its last complete checkpoint" in r.output
+    assert "Hint: run the same command again to resume the study" in r.output
+    assert "mikt transfer --resume" not in r.output
+    assert open_run(registry, "run1").card.status == "interrupted"
+
+
+# one driver per study folder ---------------------------------------------------------------------------------------
+
+@pytest.mark.slow  # a second process drives the study
+def test_a_second_driver_on_the_same_study_folder_is_refused(registry, tmp_path):
+    grid, out = vpg_grid(tmp_path, steps=2048 * 40), tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": f"{SRC}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
+           "MIKT_REGISTRY": str(registry)}
+    first = subprocess.Popen([sys.executable, "-m", "miktcli", "study", str(grid), "--out", str(out)], env=env,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not (out / "state.json").exists():  # the first driver has prepared its cell and trains it
+            assert first.poll() is None, first.stderr.read()
+            assert time.monotonic() < deadline, "the first driver never prepared its cell"
+            time.sleep(0.2)
+        second = runner.invoke(app, ["study", str(grid), "--out", str(out)])
+        assert first.poll() is None, "the first driver ended before the second started: make its cell longer"
+        assert second.exit_code == 1, second.output
+        assert f"Error: {out} is driven by another `mikt study` (pid {first.pid})" in second.output
+        assert json.loads((out / "state.json").read_text()) == {"->hopper|vpg|0": "run1"}
+        assert sorted(p.name for p in (registry / "runs").iterdir()) == ["run1"]  # the second created nothing
+        # reading the folder meanwhile is fine
+        report = runner.invoke(app, ["study", str(grid), "--out", str(out), "--report-only"])
+        assert report.exit_code == 0, report.output
+    finally:
+        first.send_signal(signal.SIGTERM)
+        first.wait(timeout=120)
+
+
+def test_the_lock_is_held_for_the_whole_study_and_released_after(registry, tmp_path):
+    from miktcli.errors import MiktError
     from miktcli.studies.grid import load_grid
     from miktcli.studies.study import Study
 
-    grids = sorted((GRID.parent).glob("*.toml"))
-    assert any(g.name == "multi-screen.toml" for g in grids)
-    for path in grids:
-        grid = load_grid(path)
-        for method in grid.methods:  # what the study does before the first cell: an unknown option fails here
-            get_method(method.method).parse_options(method.options)
-        if grid.name == "multi-screen":
-            assert len(Study(grid, Path("/nonexistent"), Path("/nonexistent")).distinct_cells()) <= 16
+    grid = load_grid(vpg_grid(tmp_path))
+    driver, other = Study(grid, tmp_path / "out", registry), Study(grid, tmp_path / "out", registry)
+    with driver.driving():
+        driver.prepare("test")
+        with pytest.raises(MiktError, match=f"is driven by another `mikt study` \\(pid {os.getpid()}\\)"):
+            other.prepare("test")
+        driver.prepare("test")  # the driver itself may prepare again (a resumed serial loop does)
+    assert [key for key, _ in other.prepare("test")] == ["->hopper|vpg|0"]  # free again once the driver ends
+    # and a driver that took the lock reads state.json as it is now, not as it was when it was constructed
+    assert other.cells == driver.cells == {"->hopper|vpg|0": "run1"}
+
+
+def test_a_driver_reads_state_written_after_it_was_constructed(registry, tmp_path):
+    from miktcli.studies.grid import load_grid
+    from miktcli.studies.study import Study
+
+    grid = load_grid(vpg_grid(tmp_path))
+    early, first = Study(grid, tmp_path / "out", registry), Study(grid, tmp_path / "out", registry)
+    first.prepare("test")  # another driver prepared the cell since `early` read the folder
+    assert [run.id for _, run in early.prepare("test")] == ["run1"]  # the same run, not a second one
+
+
+# --address without a Ray cluster behind it: one line, before any cell is prepared (it used to hang, printing Ray's
+# log lines, after creating every cell's run) -----------------------------------------------------------------
+
+def ray_grid(tmp_path):
+    return vpg_grid(tmp_path, seeds=(0, 1))
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@needs_ray
+def test_an_address_where_nothing_listens_is_one_line_before_any_cell_exists(registry, tmp_path):
+    address = f"127.0.0.1:{free_port()}"
+    r = runner.invoke(app, ["study", str(ray_grid(tmp_path)), "--out", str(tmp_path / "out"), "--address", address])
+    assert r.exit_code == 1, r.output
+    assert f"Error: no Ray cluster answers at {address}" in r.output
+    assert "ray start --head" in r.output
+    assert not (registry / "runs").exists() and not (tmp_path / "out" / "state.json").exists()
+
+
+@needs_ray
+def test_an_address_that_never_answers_times_out(registry, tmp_path, monkeypatch):
+    import miktcli.studies.ray_executor as ray_executor
+
+    monkeypatch.setattr(ray_executor, "RAY_CONNECT_TIMEOUT_S", 0.5)
+    # TEST-NET-1 (RFC 5737): routed nowhere, so a connection waits until it times out (or fails at once
+    # where the machine has no route at all); either way one line, no run
+    r = runner.invoke(app, ["study", str(ray_grid(tmp_path)), "--out", str(tmp_path / "out"),
+                            "--address", "192.0.2.1:6379"])
+    assert r.exit_code == 1 and "Error: no Ray cluster answers at 192.0.2.1:6379" in r.output, r.output
+    assert not (registry / "runs").exists()
+
+
+@needs_ray
+def test_auto_without_a_running_cluster_is_one_line(registry, tmp_path, monkeypatch):
+    import ray._private.services as services
+
+    def nothing_found(address):  # as on a machine where `ray start` never ran (other tests may run Ray here)
+        raise ConnectionError("Could not find any running Ray instance. Please specify the one to connect to.")
+
+    monkeypatch.setattr(services, "canonicalize_bootstrap_address_or_die", nothing_found)
+    r = runner.invoke(app, ["study", str(ray_grid(tmp_path)), "--out", str(tmp_path / "out"), "--address", "auto"])
+    assert r.exit_code == 1, r.output
+    assert "Error: no Ray cluster answers at auto: Could not find any running Ray instance" in r.output
+    assert not (registry / "runs").exists()
+
+
+@needs_ray
+def test_a_malformed_address_is_one_line(registry, tmp_path):
+    r = runner.invoke(app, ["study", str(ray_grid(tmp_path)), "--out", str(tmp_path / "out"),
+                            "--address", "not an address"])
+    assert r.exit_code == 1 and "Error: --address 'not an address'" in r.output, r.output
+    assert not (registry / "runs").exists()

@@ -16,6 +16,7 @@ from miktcli.cli import eval as eval_cmd
 from miktcli.cli import inspect as inspect_cmd
 from miktcli.cli import runs as runs_cmd
 from miktcli.cli import study as study_cmd
+from miktcli.cli import study_carry
 from miktcli.cli import teacher as teacher_cmd
 from miktcli.cli import transfer as transfer_cmd
 from miktcli.cli.console import debug_enabled, err, print_error
@@ -98,7 +99,9 @@ app.command("transfer", help=transfer_cmd.HELP, no_args_is_help=True, cls=Method
 app.command("eval", help=eval_cmd.HELP)(eval_cmd.eval_command)
 app.command("inspect", help=inspect_cmd.HELP)(inspect_cmd.inspect)
 app.command("runs")(runs_cmd.runs)
-app.command("study", help=study_cmd.HELP, no_args_is_help=True)(study_cmd.study)
+study_cmd.app.command("snapshot")(study_carry.snapshot)
+study_cmd.app.command("restore")(study_carry.restore)
+app.add_typer(study_cmd.app, name="study")
 
 
 def _stop_on_sigterm(signum, frame) -> None:

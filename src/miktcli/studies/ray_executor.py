@@ -20,10 +20,8 @@ import signal
 import socket
 import tempfile
 import threading
-import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass, field
+from collections.abc import Iterator
+from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +32,9 @@ from miktcli.errors import MiktError
 from miktcli.registry.files import deferred_interrupt, write_bytes_atomic
 from miktcli.registry.runs import Run, RunLock, open_run
 from miktcli.registry.teachers import resolve
+from miktcli.studies.executor import CellEvent, Progress
+from miktcli.studies.grid import Grid
+from miktcli.studies.study import Study
 from miktcli.workflows.session import run_to_end
 from miktcli.workflows.transfer import train_transfer_chunk
 
@@ -47,28 +48,6 @@ ENV_FORWARD = ("MUJOCO_GL", "PYOPENGL_PLATFORM", "MIKT_ENVSPECS")
 # How long `--address` may take to accept a connection. Ray itself retries a dead address for minutes,
 # printing its log lines, so the address is tried first, before any cell is prepared.
 RAY_CONNECT_TIMEOUT_S = 10.0
-
-
-@dataclass
-class CellProgress:
-    """What the driver shows for one cell."""
-
-    key: str
-    run_id: str
-    total_steps: int
-    steps: int = 0
-    return_mean: float | None = None
-    steps_per_sec: float | None = None
-    state: str = "queued"  # queued | training | retrying | completed | failed
-    attempts: int = 0  # tries of the chunk in flight (workers that died under it, plus one)
-    error: str | None = None
-    started: float = field(default_factory=time.monotonic)
-
-    @property
-    def eta_seconds(self) -> float | None:
-        if not self.steps_per_sec or self.state != "training":
-            return None
-        return (self.total_steps - self.steps) / self.steps_per_sec
 
 
 def ray_available() -> bool:
@@ -184,7 +163,7 @@ def _write_back(run: Run, files: dict[str, bytes]) -> None:
         write_bytes_atomic(run.path / name, files[name])
 
 
-def _update_progress(progress: CellProgress, files: dict[str, bytes]) -> str:
+def _update_progress(progress: CellEvent, files: dict[str, bytes]) -> str:
     card = json.loads(files["run.json"])
     progress.steps = card["steps_done"]
     lines = [ln for ln in files.get("metrics.jsonl", b"").decode().splitlines() if ln.strip()]
@@ -294,7 +273,7 @@ class RayDriver:
             "WorkerCrashedError", "NodeDiedError", "ObjectLostError", "RaySystemError", "OwnerDiedError",
             "LocalRayletDiedError") if hasattr(ray.exceptions, name))
         pending = [(key, run) for key, run in cells if run.card.status != "completed"]
-        self.progress = {run.id: CellProgress(key, run.id, run.card.total_steps, run.card.steps_done)
+        self.progress = {run.id: CellEvent(key, run.id, run.card.total_steps, steps=run.card.steps_done)
                          for key, run in pending}
         self.runs = {run.id: run for _, run in pending}
         self.chunks = {run_id: 0 for run_id in self.runs}  # chunks handed back, per cell, in this session
@@ -320,7 +299,7 @@ class RayDriver:
         if p.state == "queued":
             p.state = "training"
 
-    def _end(self, run_id: str, state: str, error: str | None = None) -> CellProgress:
+    def _end(self, run_id: str, state: str, error: str | None = None) -> CellEvent:
         p = self.progress[run_id]
         p.state, p.error = state, error
         if state == "failed":
@@ -328,7 +307,7 @@ class RayDriver:
         self.locks.pop(run_id).release()
         return p
 
-    def _take_back(self, ref, submit_next: bool = True) -> CellProgress | None:
+    def _take_back(self, ref, submit_next: bool = True) -> CellEvent | None:
         """What a finished task means for its cell: the cell's progress when the cell ended, else None. With
         submit_next False (the study is stopping) the cell's next chunk, or a retry, is not sent."""
         run_id = self.in_flight.pop(ref)
@@ -356,7 +335,7 @@ class RayDriver:
             self._submit(run_id)
         return None
 
-    def run(self, on_progress: Callable[[list[CellProgress]], None] | None) -> Iterator[CellProgress]:
+    def run(self, on_progress: Progress | None) -> Iterator[CellEvent]:
         """Raises KeyboardInterrupt, between two waits, once Ctrl-C or SIGTERM asked the study to stop."""
         with stop_requests() as stop:
             while (self.queue or self.in_flight) and not stop.is_set():
@@ -390,7 +369,7 @@ class RayDriver:
 
 def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: int | None, address: str | None,
                      eval_episodes: int, chunk_iterations: int = CHUNK_ITERATIONS,
-                     on_progress: Callable[[list[CellProgress]], None] | None = None) -> Iterator[CellProgress]:
+                     on_progress: Progress | None = None) -> Iterator[CellEvent]:
     """Train the unfinished `cells` on Ray; yields each cell's progress when it completes or fails.
 
     Starts a local Ray instance with `workers` CPUs (and stops it after) unless `address` names a running
@@ -409,3 +388,28 @@ def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: i
             raise
         finally:
             driver.release()
+
+
+class RayExecutor:
+    """The cells on Ray (studies.executor.Executor): a local instance with `workers` CPUs, or the cluster at
+    `address`, one seed a task, in chunks of `chunk_iterations`."""
+
+    def __init__(self, workers: int | None, address: str | None, eval_episodes: int,
+                 chunk_iterations: int = CHUNK_ITERATIONS):
+        self.workers, self.address = workers, address
+        self.eval_episodes, self.chunk_iterations = eval_episodes, chunk_iterations
+
+    def refuses(self, grid: Grid) -> str | None:
+        if grid.seeds_together:
+            return "seeds_together trains a cell's seeds in one process; the Ray executor trains one seed a task"
+        return None
+
+    def session(self) -> AbstractContextManager[object]:
+        # connected before any run folder is created: a missing extra or an absent cluster is one line
+        return ray_session(self.workers, self.address)
+
+    def run(self, study: Study, cells: list[tuple[str, Run]], on_progress: Progress | None = None
+            ) -> Iterator[CellEvent]:
+        return run_cells_on_ray(study.registry, cells, workers=self.workers, address=self.address,
+                                eval_episodes=self.eval_episodes, chunk_iterations=self.chunk_iterations,
+                                on_progress=on_progress)

@@ -3,54 +3,57 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from typing import Any, NamedTuple
+from contextlib import AbstractContextManager, nullcontext
+from typing import Any
 
 from miktcli.registry.runs import Run, open_run
+from miktcli.studies.executor import CellEvent, Progress
+from miktcli.studies.grid import Grid
 from miktcli.studies.study import Study
 from miktcli.workflows.together import mark_together
 
-
-class CellEvent(NamedTuple):
-    key: str
-    run: Run
-    what: str  # done (finished before), start, resume, finished, failed
-    error: str | None = None  # why a failed cell failed
+Train = Callable[[list[Run]], Any]  # trains and finishes runs: one, or a cell's seeds together
 
 
-def run_serially(study: Study, command: str, train: Callable[[list[Run]], Any],
-                 retrain_missing: bool = False) -> Iterator[CellEvent]:
-    """Every unfinished cell in turn; `train` trains and finishes runs: one, or with the grid's
-    `seeds_together` a cell's unfinished seeds at once (one process, one batched update). A cell whose
-    training raises is reported `failed` and the next trains, as on Ray: one broken cell never keeps the
-    others from training, and a later run of the study retries it (a failed run is unfinished). Ctrl-C
+class SerialExecutor:
+    """Every unfinished cell in turn, trained by `train` (the CLI's shows a progress bar): one run, or with
+    the grid's `seeds_together` a cell's unfinished seeds at once (one process, one batched update). A cell
+    whose training raises is reported `failed` and the next trains, as on Ray: one broken cell never keeps
+    the others from training, and a later run of the study retries it (a failed run is unfinished). Ctrl-C
     (KeyboardInterrupt) is no cell's failure: it stops the study."""
-    together = study.grid.seeds_together
-    waiting: list[tuple[str, Run]] = []
-    for key, run in study.prepare(command, retrain_missing):
-        if run.card.status == "completed":
-            yield CellEvent(key, run, "done")
-        elif together:
-            waiting.append((key, run))
-        else:
-            yield from _train_cells(study, [(key, run)], train)
-    groups: dict[str, list[tuple[str, Run]]] = {}
-    for key, run in waiting:  # a cell's seeds: the same key but for the seed after the last "|"
-        groups.setdefault(key.rsplit("|", 1)[0], []).append((key, run))
-    for cells in groups.values():
-        if len(cells) > 1 and not all(run.card.seeds_together for _, run in cells):
-            mark_together([run for _, run in cells])
-        yield from _train_cells(study, cells, train)
 
+    def __init__(self, train: Train):
+        self.train = train
 
-def _train_cells(study: Study, cells: list[tuple[str, Run]], train: Callable[[list[Run]], Any]
-                 ) -> Iterator[CellEvent]:
-    for key, run in cells:
-        yield CellEvent(key, run, "resume" if run.card.steps_done else "start")
-    try:
-        train([run for _, run in cells])
-    except Exception as err:  # noqa: BLE001 - whatever one cell's training raises is that cell's failure
+    def refuses(self, grid: Grid) -> str | None:
+        return None  # every grid trains here
+
+    def session(self) -> AbstractContextManager[object]:
+        return nullcontext()  # nothing to connect to
+
+    def run(self, study: Study, cells: list[tuple[str, Run]], on_progress: Progress | None = None
+            ) -> Iterator[CellEvent]:
+        unfinished = [(key, run) for key, run in cells if run.card.status != "completed"]
+        if not study.grid.seeds_together:
+            for cell in unfinished:
+                yield from self._train(study, [cell])
+            return
+        groups: dict[str, list[tuple[str, Run]]] = {}
+        for key, run in unfinished:  # a cell's seeds: the same key but for the seed after the last "|"
+            groups.setdefault(key.rsplit("|", 1)[0], []).append((key, run))
+        for group in groups.values():
+            if len(group) > 1 and not all(run.card.seeds_together for _, run in group):
+                mark_together([run for _, run in group])
+            yield from self._train(study, group)
+
+    def _train(self, study: Study, cells: list[tuple[str, Run]]) -> Iterator[CellEvent]:
         for key, run in cells:
-            yield CellEvent(key, open_run(study.registry, run.id), "failed", f"{type(err).__name__}: {err}")
-        return
-    for key, run in cells:
-        yield CellEvent(key, open_run(study.registry, run.id), "finished")
+            yield CellEvent.of(key, run, "training")
+        try:
+            self.train([run for _, run in cells])
+        except Exception as err:  # noqa: BLE001 - whatever one cell's training raises is that cell's failure
+            for key, run in cells:
+                yield CellEvent.of(key, open_run(study.registry, run.id), "failed", f"{type(err).__name__}: {err}")
+            return
+        for key, run in cells:
+            yield CellEvent.of(key, open_run(study.registry, run.id), "completed")

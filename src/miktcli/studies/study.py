@@ -245,8 +245,8 @@ class Study:
         if missing and not retrain_missing:
             ids = ", ".join(run_id for _, run_id in missing[:5]) + (" …" if len(missing) > 5 else "")
             raise MiktError(f"{self.state_path} names {len(missing)} run(s) that {self.registry} lacks: {ids}",
-                            hint="is this the study's registry? Restore its runs (benchmarks/snapshot_study.py "
-                                 "--restore), or pass --retrain-missing to train those cells afresh")
+                            hint=f"is this the study's registry? Restore its runs (mikt study restore {self.out_dir} "
+                                 "--registry REGISTRY), or pass --retrain-missing to train those cells afresh")
         self._pin_teachers()
         self._check_envs_unchanged()
         cells: list[tuple[str, Run]] = []
@@ -305,6 +305,16 @@ class Study:
             run.save_card(status="created")
         cells.append((key, run))
         return created
+
+    def report_finished(self, grid_file: Path) -> Report:
+        """`--report-only`: the report of what has finished, refused where the folder holds no study (an empty
+        report would pass for a study without results)."""
+        self.check_envs()  # training checks it before any cell is created
+        if not self.cells:
+            why = f"{self.state_path.name} names no cell" if self.state_path.is_file() else f"no {self.state_path.name}"
+            raise MiktError(f"{self.out_dir} holds no study yet ({why}): nothing to report",
+                            hint=f"is --out right? Start the study with: mikt study {grid_file} --out {self.out_dir}")
+        return self.report()
 
     def report(self) -> Report:
         """Aggregate whatever has finished into results.md, summary.json and plots (see studies.report)."""

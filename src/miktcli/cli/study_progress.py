@@ -1,0 +1,84 @@
+"""What `mikt study` shows while it trains: the Ray table (a live one on a terminal, lines otherwise), the
+serial executor's line per cell, and the study's overview."""
+
+from __future__ import annotations
+
+import time
+
+from rich.table import Table
+
+from miktcli.cli.console import err
+from miktcli.studies.executor import CellEvent
+
+
+def duration(seconds: float | None) -> str:
+    if seconds is None:
+        return "—"
+    minutes, secs = divmod(int(seconds), 60)
+    return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}"
+
+
+def overview(cells: list[CellEvent], finished_before: int) -> str:
+    """The whole study in one line: cells done, what is left, and when it ends at the current pace."""
+    done = finished_before + sum(c.state == "completed" for c in cells)
+    training = sum(c.state in ("training", "retrying") for c in cells)
+    failed = sum(c.state == "failed" for c in cells)
+    left = sum(c.total_steps - c.steps for c in cells if c.state not in ("completed", "failed"))
+    # The running cells' summed pace: cells of other methods run at other speeds, so this is an estimate.
+    rate = sum(c.steps_per_sec or 0.0 for c in cells if c.state == "training")
+    line = f"{done}/{finished_before + len(cells)} cells completed, {training} training"
+    line += f", {failed} failed" if failed else ""
+    line += f"; {left:,} steps to go"
+    return line + (f", about {duration(left / rate)} at the current {rate:,.0f} steps/s" if rate and left else "")
+
+
+def progress_table(cells: list[CellEvent], finished_before: int) -> Table:
+    table = Table("cell (teachers > target | method | seed)", "run", "state", "steps", "return", "steps/s", "ETA",
+                  title="mikt study on Ray", title_justify="left", caption=overview(cells, finished_before),
+                  caption_justify="left")
+    for c in cells:
+        ret = "—" if c.return_mean is None else f"{c.return_mean:.1f}"
+        sps = "—" if c.steps_per_sec is None else f"{c.steps_per_sec:.0f}"
+        table.add_row(c.key, c.run_id, c.state, f"{c.steps:,}/{c.total_steps:,}", ret, sps, duration(c.eta_seconds))
+    return table
+
+
+class PlainProgress:
+    """One line per cell whose steps moved, then the study's overview, at most every 30 s, when stderr is not
+    a terminal."""
+
+    def __init__(self, finished_before: int):
+        self.finished_before = finished_before
+        self.shown: dict[str, tuple[int, str]] = {}
+        self.last = 0.0
+
+    def __call__(self, cells: list[CellEvent]) -> None:
+        if time.monotonic() - self.last < 30:
+            return
+        self.last = time.monotonic()
+        moved = False
+        for c in cells:
+            if self.shown.get(c.run_id) != (c.steps, c.state):
+                self.shown[c.run_id] = (c.steps, c.state)
+                moved = True
+                err.print(f"{c.key}: {c.run_id} {c.state} {c.steps:,}/{c.total_steps:,} steps"
+                          + ("" if c.return_mean is None else f", return {c.return_mean:.1f}"))
+        if moved:
+            err.print(f"study: {overview(cells, self.finished_before)}")
+
+
+def cell_line(event: CellEvent, done: int, total: int) -> str | None:
+    """The serial executor's line for one event: a cell that starts or resumes, completes or fails."""
+    if event.state == "training":
+        return f"{event.key}: {'resume' if event.resumed else 'start'} {event.run_id}"
+    if event.state in ("done", "completed"):  # done: completed before this session
+        return f"[{done}/{total}] {event.key}: {event.run_id} completed"
+    if event.state == "failed":
+        return f"{event.key}: {event.run_id} failed: {event.error}; going on with the next cell"
+    return None
+
+
+def pin_lines(study) -> list[str]:
+    """The versions this session pinned for references that name none (studies.pins)."""
+    return [f"study: `{ref}` pinned to {pin.ref} ({study.pins_path.name}); a later version of "
+            f"{ref.split('@')[0]} does not change this study" for ref, pin in study.new_pins if "@v" not in ref]
