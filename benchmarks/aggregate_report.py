@@ -19,10 +19,9 @@ import argparse
 import json
 from pathlib import Path
 
-from cross_study import snapshot_runs
-
 from miktcli.registry.files import write_text_atomic
 from miktcli.stats import across_tasks
+from miktcli.studies.across_studies import snapshot_runs
 from miktcli.studies.aggregates import across_pairs
 from miktcli.studies.grid import Grid, load_grid
 from miktcli.studies.render_figures import write_profiles

@@ -15,10 +15,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from cross_study import Group, curves_of, method_named, snapshot_runs, table_head
-
 from miktcli.registry.files import write_text_atomic
 from miktcli.stats.plots import png_plot
+from miktcli.studies.across_studies import Group, curves_of, method_named, snapshot_runs, table_head
 from miktcli.studies.grid import Grid, PairSpec, file_slug, load_grid
 from miktcli.studies.render_markdown import comparison_lines
 from miktcli.studies.summary import compare_methods, partial_seed_labels

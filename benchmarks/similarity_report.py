@@ -17,10 +17,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from cross_study import Group, curves_of, method_named, snapshot_runs, table_head, teachers_of
-
 from miktcli.registry.files import write_text_atomic
 from miktcli.stats.plots import png_plot
+from miktcli.studies.across_studies import Group, curves_of, method_named, snapshot_runs, table_head
 from miktcli.studies.grid import load_grid
 from miktcli.studies.render_markdown import comparison_lines
 from miktcli.studies.summary import compare_methods, partial_seed_labels
@@ -38,9 +37,9 @@ def similarity_report(root: Path, main_name: str, similarity_name: str, method_n
     seeds = similar.seeds
     main_runs, similar_runs = snapshot_runs(root / main_name), snapshot_runs(root / similarity_name)
     groups = [
-        *(Group(f"{method_name} ← {teachers_of(p)}", main, main_runs, p, method_named(main, method_name))
+        *(Group(f"{method_name} ← {p.teacher_names}", main, main_runs, p, method_named(main, method_name))
           for p in main.pairs if p.to == target),
-        *(Group(f"{method_name} ← {teachers_of(p)}", similar, similar_runs, p, method_named(similar, method_name))
+        *(Group(f"{method_name} ← {p.teacher_names}", similar, similar_runs, p, method_named(similar, method_name))
           for p in similar.pairs),
     ]
     labels = [g.label for g in groups]

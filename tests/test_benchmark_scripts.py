@@ -72,7 +72,8 @@ def test_similarity_report_puts_every_teacher_of_the_target_on_the_same_seeds(re
 
 
 def test_a_student_weight_curve_is_counted_like_its_return_curve():
-    cross = load_script("cross_study")
+    from miktcli.studies import across_studies as cross
+
     found = cross.Curves(per_seed={"mikt ← far": {"final return": np.array([1.0])},
                                    "vpg": {"final return": np.array([1.0, 2.0])}},
                          weights={cross.weight_label("mikt ← far"): [(2048, 0.5)]})
@@ -278,6 +279,7 @@ def test_aggregate_report_normalises_by_random_and_the_baseline_per_target(regis
 
 def test_multi_teacher_report_against_cat_and_across_studies_by_hand(registry, tmp_path):
     from miktcli.studies.grid import load_grid
+    from miktcli.studies.reference import load_reference
 
     two_grid, one_grid, cat_file = tmp_path / "two.toml", tmp_path / "one.toml", tmp_path / "cat.toml"
     two_grid.write_text(
@@ -324,7 +326,7 @@ def test_multi_teacher_report_against_cat_and_across_studies_by_hand(registry, t
 
     script = load_script("multi_teacher_report")
     path = script.report(tmp_path / "two", load_grid(two_grid), tmp_path / "one", load_grid(one_grid),
-                         script.load_cat(cat_file), {"hopper": 0.0, "ant": 0.0}, "by hand", n_resamples=500,
+                         load_reference(cat_file), {"hopper": 0.0, "ant": 0.0}, "by hand", n_resamples=500,
                          fall=(4096, 8192))
     text = path.read_text()
     rows = [line for line in text.splitlines() if line.startswith("| a+b → ")]
@@ -366,29 +368,34 @@ def test_multi_teacher_report_against_cat_and_across_studies_by_hand(registry, t
     screen.write_text(two_grid.read_text().split("[[methods]]")[0].replace('baseline = "vpg"', 'baseline = "mikt"')
                       + '[[methods]]\nname = "mikt"\nmethod = "mikt"\n')
     path = script.report(tmp_path / "two", load_grid(screen), tmp_path / "one", load_grid(one_grid),
-                         script.load_cat(cat_file), {}, "by hand", out=tmp_path / "screen.md")
+                         load_reference(cat_file), {}, "by hand", out=tmp_path / "screen.md")
     text = path.read_text()
     assert text.startswith("# two: `mikt` against CAT") and "is not PPO from scratch" in text
     assert "| a+b → hopper | π | 2 | 0.75 ± 0.07 | 0.50 | 0.75 ± 0.07 | 0.60 |" in text
     assert "## Across studies" not in text and not (tmp_path / "screen-profile.png").exists()
 
 
-def test_a_malformed_file_of_cat_figures_is_a_one_line_error(tmp_path):
+def test_a_malformed_reference_file_is_a_one_line_error(tmp_path):
+    from miktcli.errors import MiktError
+    from miktcli.studies.reference import load_reference
+
     bad = tmp_path / "cat.toml"
     bad.write_text('windows = [[1, 2]]\n[[runs]]\nteachers = ["a"]\nto = "x"\nreturns = [1, 2]\n')
-    with pytest.raises(SystemExit, match="one return per window"):
-        load_script("multi_teacher_report").load_cat(bad)
+    with pytest.raises(MiktError, match="one return per window"):
+        load_reference(bad)
     bad.write_text('windows = [[1, 2]]\n[[runs]]\nteachers = ["a"]\nto = "x"\nreturns = [1]\n'
                    'hand_over = { drop = 2, p_pi = 0.9, p_vf = 0.9, before = 1, after = 2 }\n')
-    with pytest.raises(SystemExit, match="no hand_over_before"):
-        load_script("multi_teacher_report").load_cat(bad)
+    with pytest.raises(MiktError, match="no hand_over_before"):
+        load_reference(bad)
     bad.write_text('windows = [[1, 2]]\nramp_marks = [1, 2]\n[[runs]]\nteachers = ["a"]\nto = "x"\nreturns = [1]\n'
                    'ramp = { p_pi = [0.5], p_vf = [0.5, 0.6] }\n')
-    with pytest.raises(SystemExit, match="one student weight per ramp_marks"):
-        load_script("multi_teacher_report").load_cat(bad)
+    with pytest.raises(MiktError, match="one student weight per ramp_marks"):
+        load_reference(bad)
     bad.write_text("windows = [")
-    with pytest.raises(SystemExit, match="not a file of CAT's figures"):
-        load_script("multi_teacher_report").load_cat(bad)
+    with pytest.raises(MiktError, match="not a reference file"):
+        load_reference(bad)
+    with pytest.raises(MiktError, match="cannot be read"):
+        load_reference(tmp_path / "absent.toml")
 
 
 @pytest.mark.slow

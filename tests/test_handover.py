@@ -194,17 +194,17 @@ def test_a_study_report_shows_each_run_s_hand_over_and_slowdown():
     from types import SimpleNamespace
 
     from miktcli.studies.handover import HandoverFigures
-    from miktcli.studies.render_markdown import _handover_section, _slowdown_section
+    from miktcli.studies.render_markdown import handover_lines, slowdown_lines
 
     f = HandoverFigures(run="run7", handover="fold", at_step=1_800_384, with_teachers=5168.0,
                         without_teachers=5000.0, kept=5000 / 5168, before=4000.0, after=4100.0,
                         after_200k=4200.0, final=4300.0)
     summary = SimpleNamespace(handovers=[("a+b>c|mikt|0", f)],
                               slowdowns=[("a+b>c|mikt|1", "run8", {"phase": "ramp", "step": 462848, "factor": 2.7})])
-    text = "\n".join(_handover_section(summary) + _slowdown_section(summary))
+    text = "\n".join(handover_lines(summary) + slowdown_lines(summary))
     assert "| a+b>c | mikt | 0 | run7 | fold | 1,800,384 | 5,168 | 5,000 | 97% | 4,000 | 4,100 | +100 |" in text
     assert "| a+b>c | mikt | 1 | run8 | ramp | 462,848 | 2.7× |" in text
-    assert _handover_section(SimpleNamespace(handovers=[])) == []
+    assert handover_lines(SimpleNamespace(handovers=[])) == []
 
 
 @pytest.mark.parametrize("teachers", [1, 2])

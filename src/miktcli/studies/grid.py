@@ -7,7 +7,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from miktcli import compat
 from miktcli.engine.ppo import PPOConfig
@@ -29,8 +29,13 @@ class PairSpec(BaseModel):
     label: str | None = None
 
     @property
+    def teacher_names(self) -> str:
+        """The teachers without their versions, "a+b": as the pair's name and a reference result name them."""
+        return "+".join(t.split("@")[0] for t in self.teachers)
+
+    @property
     def name(self) -> str:
-        return self.label or f"{'+'.join(t.split('@')[0] for t in self.teachers)} → {self.to}"
+        return self.label or f"{self.teacher_names} → {self.to}"
 
 
 class MethodSpec(BaseModel):
@@ -71,6 +76,19 @@ class MethodSpec(BaseModel):
         return not get_method(self.method).trains_from_scratch
 
 
+class ReportRequest(BaseModel):
+    """A report section the grid asks for beyond the standard ones (`[[report]]`, section = NAME, then the
+    section's own options, checked by the section when the study is opened: studies.sections)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    section: str
+
+    @property
+    def options(self) -> dict[str, Any]:
+        return dict(self.model_extra or {})
+
+
 def file_slug(text: str) -> str:
     """A pair's or method's name as a file or folder name (plots, TensorBoard runs)."""
     return "".join(c if c.isalnum() or c in "._-" else "-" for c in text.replace(" → ", "-to-")).strip("-")
@@ -79,7 +97,7 @@ def file_slug(text: str) -> str:
 class Grid(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    # the default results folder is benchmarks/results/NAME: a name, never a path
+    # the default results folder is ./studies/NAME: a name, never a path
     name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
     steps: int = Field(gt=0)
     seeds: list[Annotated[int, Field(ge=0, le=2**32 - 1)]] = Field(min_length=1)
@@ -94,6 +112,13 @@ class Grid(BaseModel):
                                  "serial studies only (no --workers)")
     pairs: list[PairSpec] = Field(min_length=1)
     methods: list[MethodSpec] = Field(min_length=1)
+    report: list[ReportRequest] = Field(default_factory=list, description="sections after the standard ones")
+    # the grid file's folder: a section's file option (a reference result) is read relative to it
+    _folder: Path | None = PrivateAttr(None)
+
+    @property
+    def folder(self) -> Path:
+        return self._folder or Path.cwd()
 
     @model_validator(mode="after")
     def _no_duplicates(self) -> Grid:
@@ -129,7 +154,9 @@ def load_grid(path: Path) -> Grid:
         if len(raw) > MAX_GRID_FILE_BYTES:
             raise MiktError(f"{path}: a grid file holds at most {MAX_GRID_FILE_BYTES:,} bytes; this one is larger")
         data = tomllib.loads(raw.decode("utf-8"))
-        return Grid.model_validate(data)
+        grid = Grid.model_validate(data)
+        grid._folder = Path(path).resolve().parent
+        return grid
     except FileNotFoundError:
         raise MiktError(f"grid file {path} not found") from None
     except tomllib.TOMLDecodeError as err:

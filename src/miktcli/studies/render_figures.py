@@ -1,6 +1,6 @@
 """A study's figures from its summary: each pair's learning curves (mean ± sample std over seeds) and student
 weights, every pair at a glance (summary.png) when the study has more than one, and the performance profiles
-across pairs (aggregate-profile.png) where the report has them."""
+across pairs (aggregate-profile.png), which the across-pairs section (studies.sections) draws."""
 
 from __future__ import annotations
 
@@ -77,5 +77,3 @@ def write_figures(summary: StudySummary, out_dir: Path) -> None:
             write_weight_panels(pair, weighted, out_dir, seeds)
     if draws_summary(summary):
         png_panels(panels, out_dir / SUMMARY_FIGURE, "mean episode return", order=order, labels=panel_labels)
-    if summary.across_pairs is not None:
-        write_profiles(summary.across_pairs, out_dir, summary.grid.name)

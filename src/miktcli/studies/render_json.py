@@ -45,11 +45,11 @@ def across_pairs_json(a: AcrossPairs) -> dict[str, Any]:
     return data
 
 
-def summary_json(summary: StudySummary) -> dict[str, Any]:
+def summary_json(summary: StudySummary, sections: dict[str, Any]) -> dict[str, Any]:
+    """Each pair's methods, then the sections' data by key (studies.sections), then the runs left out."""
     data: dict[str, Any] = {pair.name: {m.name: _method_entry(m, pair.marks) for m in pair.with_runs}
                             for pair in summary.pairs}
-    if summary.across_pairs is not None:
-        data["across_pairs"] = across_pairs_json(summary.across_pairs)
+    data.update(sections)
     if summary.left_out:
         data["left_out"] = summary.left_out
     return data
@@ -59,7 +59,8 @@ def comparisons_json(summary: StudySummary) -> dict[str, list[dict[str, Any]]]:
     return {pair.name: pair.comparisons for pair in summary.pairs}
 
 
-def write_json(summary: StudySummary, out_dir: Path) -> None:
-    write_text_atomic(out_dir / "summary.json", json.dumps(summary_json(summary), indent=2, ensure_ascii=False))
+def write_json(summary: StudySummary, out_dir: Path, sections: dict[str, Any]) -> None:
+    write_text_atomic(out_dir / "summary.json",
+                      json.dumps(summary_json(summary, sections), indent=2, ensure_ascii=False))
     write_text_atomic(out_dir / "comparisons.json",
                       json.dumps(comparisons_json(summary), indent=2, ensure_ascii=False))

@@ -70,7 +70,7 @@ def _method_row(m: MethodSummary, pair: PairSummary, columns: int) -> str:
             f"{mean_pm_std(m.evals)} | {m.reach} | {m.reach_75} | {weights} |")
 
 
-def _pair_section(pair: PairSummary, baseline: str) -> list[str]:
+def pair_lines(pair: PairSummary, baseline: str) -> list[str]:
     header = ["method", "n", *pair.mark_labels, "mean over training",
               "final eval (no teacher)", f"steps to {baseline} final", f"steps to ¾ of {baseline} final",
               "final student weights p (π / V)"]
@@ -199,7 +199,7 @@ def _note_lines(notes: list[str]) -> list[str]:
     return ["Left out:", "", *(f"- {note}" for note in notes), ""] if notes else []
 
 
-def _handover_section(summary: StudySummary) -> list[str]:
+def handover_lines(summary: StudySummary) -> list[str]:
     if not summary.handovers:
         return []
     lines = ["## The hand-over at the teacher drop", "",
@@ -217,7 +217,7 @@ def _handover_section(summary: StudySummary) -> list[str]:
     return [*lines, ""]
 
 
-def _slowdown_section(summary: StudySummary) -> list[str]:
+def slowdown_lines(summary: StudySummary) -> list[str]:
     if not summary.slowdowns:
         return []
     lines = ["## Runs whose update slowed as they trained", "",
@@ -231,12 +231,10 @@ def _slowdown_section(summary: StudySummary) -> list[str]:
     return [*lines, ""]
 
 
-def render_markdown(summary: StudySummary) -> str:
+def render_markdown(summary: StudySummary, sections: list[list[str]]) -> str:
+    """The intro, the sections' lines (studies.sections) in order, then the table of every cell's run."""
     lines = _intro(summary)
-    if summary.across_pairs is not None:
-        lines += across_pairs_lines(summary.across_pairs)
-    for pair in summary.pairs:
-        lines += _pair_section(pair, summary.grid.baseline)
-    lines += _handover_section(summary) + _slowdown_section(summary)
+    for section in sections:
+        lines += section
     return "\n".join(lines + _runs_section(summary)) + "\n"
 

@@ -28,6 +28,7 @@ from miktcli.registry.teachers import REF_RE, resolve
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key
 from miktcli.studies.pins import PINS_FILE, Pin, check_pin, pin_now, read_pins, write_pins
 from miktcli.studies.report import Report, write_report
+from miktcli.studies.sections import requested
 from miktcli.workflows.session import whole_rollouts
 from miktcli.workflows.transfer import start_transfer
 
@@ -67,6 +68,7 @@ LOCK_FILE = ".lock"  # in the study folder: held by the one process driving the 
 
 class Study:
     def __init__(self, grid: Grid, out_dir: Path, registry: Path):
+        requested(grid)  # the report sections it asks for, checked before any cell exists
         self.grid, self.out_dir, self.registry = grid, Path(out_dir), Path(registry)
         self.state_path = self.out_dir / "state.json"
         self.lock = FileLock(self.out_dir / LOCK_FILE)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -15,9 +15,6 @@ from miktcli.registry.runs import Run
 from miktcli.stats.pairwise import compare
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key, file_slug
 from miktcli.studies.handover import HandoverFigures, handover_figures
-
-if TYPE_CHECKING:
-    from miktcli.studies.aggregates import AcrossPairs
 
 RunOf = Callable[[str], Run | None]  # a cell key → its run, if one was started
 PerSeed = dict[str, dict[str, np.ndarray]]  # method → measure → one value per completed seed
@@ -224,7 +221,6 @@ class StudySummary:
     cells: list[tuple[str, str, Run | None]]  # (cell key, run id, the run if the registry has it)
     # each teacher reference of the grid → the versions the study's runs used (more than one: a mix)
     teachers: dict[str, list[TeacherVersion]] = field(default_factory=dict)
-    across_pairs: AcrossPairs | None = None  # studies.aggregates, added by the report (it reads the study folder)
     handovers: list[tuple[str, HandoverFigures]] = field(default_factory=list)  # cell key, its run's hand-over
     slowdowns: list[tuple[str, str, dict[str, Any]]] = field(default_factory=list)  # cell key, run id, record
 

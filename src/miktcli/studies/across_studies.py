@@ -2,24 +2,23 @@
 teacher-similarity and controls/ablations reports share.
 
 A *group* is one curve: a label, the grid and snapshot folder it comes from, its pair and its method. Runs are
-read from `STUDY/runs/RUN/` (written by benchmarks/snapshot_study.py), so the reports work from a fresh clone.
+read from `STUDY/runs/RUN/` (written by `mikt study snapshot`), so the reports work from a fresh clone without
+a registry.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from miktcli.errors import MiktError
 from miktcli.registry.cards import RunCard
 from miktcli.registry.runs import Run
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec
-from miktcli.studies.summary import completed_curves, mean_pm_std, sample_std
-
-RunOf = Callable[[str], "Run | None"]
+from miktcli.studies.summary import RunOf, completed_curves, mean_pm_std, sample_std
 
 
 def snapshot_runs(results: Path) -> RunOf:
@@ -35,15 +34,12 @@ def snapshot_runs(results: Path) -> RunOf:
     return run_of
 
 
-def teachers_of(pair: PairSpec) -> str:
-    return "+".join(t.split("@")[0] for t in pair.teachers)
-
-
 def method_named(grid: Grid, name: str) -> MethodSpec:
     for method in grid.methods:
         if method.name == name:
             return method
-    raise SystemExit(f"grid '{grid.name}' has no method '{name}'")
+    raise MiktError(f"grid '{grid.name}' has no method '{name}'",
+                    hint=f"its methods: {', '.join(m.name for m in grid.methods)}")
 
 
 @dataclass
