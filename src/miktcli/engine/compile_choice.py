@@ -1,7 +1,7 @@
 """Whether a run's update goes through torch.compile (PPOConfig.compile_loss): asked, or decided from its size.
 
 `--compile` / `--no-compile` decide; without either ("auto") a run compiles when it is long enough to repay
-the compile and a C++ compiler is there. Measured (benchmarks/throughput.py, Ant PPO and centipede-eight
+the compile and a C++ compiler is there. Measured (the project's throughput benchmark, Ant PPO and centipede-eight
 MIKT, 1 env): the compiled minibatch step saves ~0.4 ms (PPO) to ~1.5 ms (MIKT) of ~1.1 / ~3.9 ms, i.e.
 0.13-0.5 s per 2,048-step iteration, against ~20-30 s of compiling per graph (one for PPO, one per phase of
 MIKT's three-phase schedule). PPO repays it at ~500k steps, MIKT earlier, so auto compiles from 500k steps:

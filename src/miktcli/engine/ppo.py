@@ -78,8 +78,8 @@ class PPOConfig(BaseModel):
                                "reductions split differently; one is also the fastest on these small networks")
     compile_loss: bool = Field(
         False, description="run the minibatch loss and its gradient through torch.compile: the same maths to "
-        "float rounding, faster updates on a CPU (benchmarks/throughput.py), a compile of ~30 s at the start "
-        "and after a resume; needs a C++ compiler")
+        "float rounding, faster updates on a CPU (measured in the project's throughput benchmark), a compile of "
+        "~30 s at the start and after a resume; needs a C++ compiler")
     compile_reason: str = Field("", description="why compile_loss is on or off: asked (--compile, --no-compile) "
                                 "or decided by auto from the run's size (see compile_choice.py)")
 

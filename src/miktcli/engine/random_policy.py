@@ -3,7 +3,7 @@
 The random policy draws every action uniformly from the environment's action box (the Atari convention the
 normalisation comes from), one seeded stream per target; its return is the mean over whole episodes, each
 ending by termination or the 1,000-step time limit, as in training. The committed protocol is 100 episodes
-from seed 0 (benchmarks/results/random-policy.json).
+from seed 0 (the project's committed random-policy returns are measured that way).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """A study's random-policy returns (the zero of its normalised scores), cached in its folder.
 
-`random-returns.json` has the format of benchmarks/results/random-policy.json: `policy`, `code_version`,
+`random-returns.json` has the format of the project's committed random-policy.json: `policy`, `code_version`,
 `command` and `targets` (target → episodes, seed, return_mean, return_std, length_mean, returns). A target
 missing from it is measured by the committed protocol (miktcli.engine.random_policy: 100 episodes from seed 0,
 uniform over the action box) and written back atomically, each entry it adds with the code version and the

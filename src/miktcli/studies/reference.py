@@ -1,7 +1,7 @@
 """A reference result as data, and our runs measured the way it was measured.
 
 A reference file (TOML) holds another implementation's published figures for some of a study's pairs, e.g.
-CAT's training logs (benchmarks/reference/cat-uai2022.toml): its estimator in words, the step windows it
+CAT's training logs (the project's reference/cat-uai2022.toml): its estimator in words, the step windows it
 averages over, and per run the teachers, the target and one return per window; optionally the hand-over at
 its teacher drop (`hand_over`, with `hand_over_before`: the steps before the drop it averages) and each
 branch's student weight at marks inside its coupling ramp (`ramp`, with `ramp_marks`). The report section
