@@ -53,3 +53,22 @@ def specs(tmp_path, monkeypatch):
     folder.mkdir()
     monkeypatch.setenv("MIKT_ENVSPECS", str(folder))
     return folder
+
+
+@pytest.fixture()
+def teacher(registry):
+    """A one-iteration hopper teacher published as tiny@v1; its file."""
+    from helpers import mikt
+
+    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+    return registry / "teachers" / "tiny" / "v1.safetensors"
+
+
+@pytest.fixture()
+def two_vpg_runs(registry):
+    """Two finished vpg runs on hopper (run1, run2): checkpoints and students on disk."""
+    from helpers import TINY, mikt
+
+    for seed in (0, 1):
+        mikt("transfer", "--to", "hopper", "--method", "vpg", *TINY, "--seed", seed, "--eval-episodes", 1)
+    return registry / "runs"

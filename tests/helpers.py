@@ -133,3 +133,12 @@ def vpg_grid(folder, steps=2048, seeds=(0,), extra=""):
     grid.write_text(f'name = "g"\nsteps = {steps}\nseeds = {list(seeds)}\n{extra}[[pairs]]\nfrom = ["x"]\n'
                     'to = "hopper"\n[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
     return grid
+
+
+TINY = ("--steps", 2048)  # one PPO iteration: a run that finishes in seconds
+
+
+def interrupted(run):
+    """The run as Ctrl-C leaves it: its card says interrupted."""
+    run.save_card(status="interrupted")
+    return run

@@ -1,4 +1,4 @@
-"""`mikt runs --json | head -n 1` (issue 37, minor): a reader that closes the pipe early ends mikt quietly, with
+"""`mikt runs --json | head -n 1`: a reader that closes the pipe early ends mikt quietly, with
 status 1 and nothing on stderr (as rich does for tables), instead of "Error: Broken pipe"."""
 
 import os

@@ -1,4 +1,4 @@
-"""An env that fails while it runs (issue 37, H): a spec whose kwargs break only at step time is one line naming
+"""An env that fails while it runs: a spec whose kwargs break only at step time is one line naming
 the spec, in training and in evaluation, never "internal error ... please report it"."""
 
 import pytest

@@ -1,4 +1,4 @@
-"""`gym.make("mikt/NAME", ...)` cannot swap the body (issue 37, I): the spec name is bound at registration, and
+"""`gym.make("mikt/NAME", ...)` cannot swap the body: the spec name is bound at registration, and
 keywords other than max_episode_steps and render_mode are refused, naming them."""
 
 import gymnasium as gym

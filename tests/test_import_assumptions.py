@@ -1,4 +1,4 @@
-"""No silent import assumptions (issue 37, L): without --obs-stats the imported policy sees raw observations,
+"""No silent import assumptions: without --obs-stats the imported policy sees raw observations,
 unclipped, as SB3 without VecNormalize did; what a file cannot tell (CleanRL's activation) is given or recorded as
 assumed; a complex log_std is refused; one policy under two names is one teacher given twice."""
 

@@ -1,4 +1,4 @@
-"""Bounded inputs (issue 37, D): every user file has a size limit checked against the size it declares and
+"""Bounded inputs: every user file has a size limit checked against the size it declares and
 while it is read, and every budget (steps, envs, episodes, frames) has a bound checked before any run folder
 exists. The limits live in miktcli/limits.py."""
 
@@ -26,7 +26,7 @@ def no_runs(registry: Path) -> bool:
 
 @pytest.fixture(scope="module")
 def zip_bomb(tmp_path_factory) -> Path:
-    """An SB3-looking zip of 1.6 MB whose `data` inflates to 1.6 GB (the issue's case)."""
+    """An SB3-looking zip of 1.6 MB whose `data` inflates to 1.6 GB (a reported case)."""
     path = tmp_path_factory.mktemp("bomb") / "bomb.zip"
     chunk = b" " * (16 << 20)
     with zipfile.ZipFile(FIXTURE) as z, zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED, compresslevel=9) as out:

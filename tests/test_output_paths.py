@@ -1,4 +1,4 @@
-"""Output paths (issue 37, J and a minor item): checked before any work by creating a file where the output
+"""Output paths: checked before any work by creating a file where the output
 goes (os.access says yes to root and to /proc), and a command that fails leaves no folder it made behind."""
 
 from pathlib import Path

@@ -1,4 +1,4 @@
-"""A bad or unavailable MUJOCO_GL (issue 37, G): mujoco's GL backend loads only to render, so commands that
+"""A bad or unavailable MUJOCO_GL: mujoco's GL backend loads only to render, so commands that
 never render keep working, and every rendering failure (eval's frame capture included) is one `Error:` line
 with a hint. In child processes: mujoco reads MUJOCO_GL once per process."""
 

@@ -1,4 +1,4 @@
-"""What a run was started with survives --resume (issue 37, N): the final evaluation's episode count is
+"""What a run was started with survives --resume: the final evaluation's episode count is
 recorded in the card, and a resumed run evaluates with it rather than with the flag's default."""
 
 import json

@@ -1,4 +1,4 @@
-"""A spec folder holding things that are not spec files (issue 37, M): a folder named `x.toml` is named as not
+"""A spec folder holding things that are not spec files: a folder named `x.toml` is named as not
 a spec, and never hides the good specs from `mikt envs` nor breaks gym.make."""
 
 import ast

@@ -182,7 +182,7 @@ def steps_of(*iterations, n_steps=2048):
 
 
 def test_a_run_that_lost_leading_rows_is_left_out_and_named_not_aligned_by_row_index(registry, tmp_path):
-    # the case: a run folder deleted while its cell trained is recreated by the next checkpoint, and the
+    # the reported case: a run folder deleted while its cell trained is recreated by the next checkpoint, and the
     # run ends "completed" without its first rows; its last row still matches the steps it trained
     study = study_of(registry, tmp_path, [0, 1], marks=[4096, 8192])
     whole = completed_run(registry, 0, list(zip(steps_of(1, 2, 3, 4), [10, 20, 30, 40], strict=True)))

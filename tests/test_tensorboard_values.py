@@ -1,4 +1,4 @@
-"""The TensorBoard view never fails the run (issue 37, E): values float32 cannot hold (finite beyond its range,
+"""The TensorBoard view never fails the run: values float32 cannot hold (finite beyond its range,
 ±inf, NaN, ints past float64) are left out of the event file, and metrics.jsonl records them as they were."""
 
 import json
