@@ -36,13 +36,13 @@ def test_a_reference_section_sets_the_method_beside_the_figures(registry, tmp_pa
     monkeypatch.chdir(registry)  # the reference file is found beside the grid, not in the working folder
     mikt("study", grid, "--out", out, "--report-only")
     text = (out / "results.md").read_text()
-    assert "## Against THEM, pair by pair" in text
+    assert "## `mikt` against THEM, pair by pair" in text
     # windows 2048-4096 (10, 30 → 20) and 6144-8192 (50, 70 → 60) on both seeds, beside 10 and 50
     assert "| a+b → hopper | 2 | 20 ± 0 | 10 | 60 ± 0 | 50 |" in text
     # the study's estimator at the marks (10, then 40 and 60 → 50 ± 14), +0 against 50 at the end: reached
     assert "| a+b → hopper | 2 | 10 ± 0 | 50 ± 14 | 50 | +0 | yes |" in text
-    assert text.index("## Against THEM") > text.index("## a+b → hopper") and text.index("## Runs") > text.index(
-        "## Against THEM")  # after the standard sections, before the table of runs
+    assert text.index("## `mikt` against THEM") > text.index("## a+b → hopper") and text.index("## Runs") > text.index(
+        "## `mikt` against THEM")  # after the standard sections, before the table of runs
     mikt("study", grid, "--out", out, "--report-only")  # written again: the same report
     assert (out / "results.md").read_text() == text
 

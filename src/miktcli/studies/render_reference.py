@@ -114,7 +114,7 @@ def window_lines(grid: Grid, summary: StudySummary, reference: Reference, method
     fall_count = (f"; the mean curve falls between {fall[0] / 1e6:g}M and {fall[1] / 1e6:g}M on {falls}"
                   if fall else "")
     return [
-        f"## Against {label}, pair by pair", "",
+        f"## `{method}` against {label}, pair by pair", "",
         f"`{method}` of `{grid.name}`, completed seeds only (n of the grid's {len(grid.seeds)}). {label}: "
         f"{reference.estimator}.", "",
         f"**{label}'s estimator.** Ours: each run's `episode_return_iter` (the mean return of the episodes that "
@@ -136,7 +136,7 @@ def ramp_lines(grid: Grid, summary: StudySummary, reference: Reference, method: 
         return []
     marks = reference.ramp_marks
     head = ["teachers → target", "branch", "n", *(f"{who} {m / 1e6:g}M" for m in marks for who in ("ours", label))]
-    lines = ["## The student weights during the ramp", "",
+    lines = ["### The student weights during the ramp", "",
              "The student weight p of each branch (π: policy, V: value function), averaged over its hidden layers "
              f"as {label} logs it, at the last iteration at or before each mark; ours mean ± sample std over "
              f"seeds. 1 is the teachers unused: the coupling loss pushes p towards it.", "",
@@ -156,7 +156,7 @@ def ramp_lines(grid: Grid, summary: StudySummary, reference: Reference, method: 
 
 def hand_over_lines(grid: Grid, summary: StudySummary, method: str) -> list[str]:
     """Our runs at the last iteration with the teachers, and what their return does after it."""
-    lines = ["## The hand-over at the teacher drop", "",
+    lines = ["### The hand-over at the teacher drop", "",
              f"`{method}`'s completed runs at the last iteration that trained with the teachers: the smallest "
              "student weight p over the layers of policy and value (1: the teachers unused), and the return "
              "(last 100 episodes) there, at its lowest after the drop and at the end; mean ± sample std over "
