@@ -21,18 +21,10 @@ def registry(tmp_path, monkeypatch):
 def ctrl_c_at_second_update(monkeypatch):
     """Training raises KeyboardInterrupt (as Ctrl-C would) in its second update; call the returned function
     to let training run normally again."""
+    from helpers import ctrl_c_at_second_call
     from miktcli.engine.ppo import PPOTrainer
 
-    original, calls = PPOTrainer.update, {"n": 0}
-
-    def interrupted(self, batch):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return original(self, batch)
-
-    monkeypatch.setattr(PPOTrainer, "update", interrupted)
-    return lambda: monkeypatch.setattr(PPOTrainer, "update", original)
+    return ctrl_c_at_second_call(monkeypatch, PPOTrainer, "update")
 
 
 @pytest.fixture()

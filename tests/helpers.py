@@ -142,3 +142,18 @@ def interrupted(run):
     """The run as Ctrl-C leaves it: its card says interrupted."""
     run.save_card(status="interrupted")
     return run
+
+
+def ctrl_c_at_second_call(monkeypatch, owner, name):
+    """`owner.name` raises KeyboardInterrupt (as Ctrl-C would) on its second call; the returned function puts
+    the original back, so training runs normally again."""
+    original, calls = getattr(owner, name), {"n": 0}
+
+    def interrupted(self, *args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(owner, name, interrupted)
+    return lambda: monkeypatch.setattr(owner, name, original)

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 
+@pytest.mark.slow  # process-level: runs mikt in a subprocess
 @pytest.mark.parametrize("args", [("runs", "--json"), ("runs",), ("envs",)])
 def test_a_closed_stdout_ends_quietly(tmp_path, args):
     from miktcli.workflows.transfer import start_transfer

@@ -127,6 +127,7 @@ def test_time_limit_truncates_and_does_not_terminate(tmp_path):
         assert trunc == (t == 11)
 
 
+@pytest.mark.slow  # process-level: runs mikt in a subprocess
 def test_gymnasium_make_works_in_a_fresh_interpreter_without_importing_miktcli():
     import subprocess
     import sys

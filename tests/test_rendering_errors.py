@@ -33,6 +33,7 @@ def one_line_error(stderr: str) -> str:
 BAD = ["typo"] + ([] if ctypes.util.find_library("OSMesa") else ["osmesa"])  # osmesa without libOSMesa
 
 
+@pytest.mark.slow  # process-level: runs mikt in a subprocess
 @pytest.mark.parametrize("gl", BAD)
 def test_a_bad_mujoco_gl_leaves_commands_that_do_not_render_working(tmp_path, gl):
     reg = tmp_path / "reg"
@@ -50,6 +51,7 @@ def test_a_bad_mujoco_gl_leaves_commands_that_do_not_render_working(tmp_path, gl
     assert f"MUJOCO_GL='{gl}'" in error and not (tmp_path / "v.mp4").exists()
 
 
+@pytest.mark.slow  # process-level: runs mikt in a subprocess
 @pytest.mark.parametrize("env_name", ["centipede-four", "hopper"])
 def test_glfw_without_a_display_is_one_line_without_stray_warnings(tmp_path, env_name):
     r = mikt_with_gl("glfw", "envs", "render", env_name, "--out", tmp_path / "x.png", registry=tmp_path / "reg",

@@ -17,6 +17,7 @@ from miktcli.registry.runs import open_run
 
 # locks and liveness -------------------------------------------------------------------------------------------------
 
+@pytest.mark.slow  # process-level: runs mikt in a subprocess
 def test_sigkill_leaves_a_stale_run_that_resumes(registry, tmp_path):
     env = {**os.environ, "MIKT_REGISTRY": str(registry)}
     proc = subprocess.Popen([sys.executable, "-m", "miktcli", "teacher", "train", "hopper", "--steps", "40960"],

@@ -6,7 +6,7 @@ import json
 import pytest
 import torch
 
-from helpers import mikt, runs
+from helpers import ctrl_c_at_second_call, mikt, runs
 from miktcli.engine.policies import GaussianActorCritic
 from miktcli.engine.ppo import PPOConfig, PPOTrainer
 from miktcli.engine.together import SeedsTogether
@@ -100,15 +100,7 @@ def test_seeds_and_seed_together_are_refused(registry):
 
 
 def test_an_interrupted_group_resumes_together_from_any_of_its_runs(registry, monkeypatch):
-    original, calls = SeedsTogether.update, {"n": 0}
-
-    def interrupted(self, batches):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return original(self, batches)
-
-    monkeypatch.setattr(SeedsTogether, "update", interrupted)
+    ctrl_c_at_second_call(monkeypatch, SeedsTogether, "update")
     out = mikt("transfer", *SMALL, "--seeds", "0-1", code=1)
     assert "--resume" in out.output
     cards = {r["run_id"]: r for r in runs(registry)}
@@ -126,17 +118,9 @@ def test_a_seed_left_behind_catches_up_alone_then_trains_with_the_others(registr
     from miktcli.workflows.session import Job, run_to_end
     from miktcli.workflows.together import train_transfers_together
 
-    original, calls = SeedsTogether.update, {"n": 0}
-
-    def interrupted(self, batches):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return original(self, batches)
-
-    monkeypatch.setattr(SeedsTogether, "update", interrupted)
+    let_it_train = ctrl_c_at_second_call(monkeypatch, SeedsTogether, "update")
     mikt("transfer", *SMALL, "--seeds", "0-1", code=1)
-    monkeypatch.setattr(SeedsTogether, "update", original)
+    let_it_train()
     first, second = sorted(r["run_id"] for r in runs(registry))
     with Job(open_run(registry, second), registry) as job:  # as if stopped between the two checkpoints
         for metrics in job.trainer.run():
