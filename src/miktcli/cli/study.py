@@ -39,7 +39,6 @@ class StudyGroup(TyperGroup):
 
 
 app = typer.Typer(cls=StudyGroup, help=HELP, no_args_is_help=True)
-ResultsArgument = typer.Argument(..., help="The study's results folder (its --out).")
 
 
 @app.command("run", help=HELP, no_args_is_help=True)

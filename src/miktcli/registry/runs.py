@@ -60,6 +60,12 @@ def check_registry(registry: Path) -> None:
                         hint="point --registry or MIKT_REGISTRY at a folder")
 
 
+def run_number(run_id: str) -> int:
+    """The order runs were created in: run9 is 9, before run10 (0 for an id that is not a run's)."""
+    m = RUN_RE.fullmatch(run_id)
+    return int(m.group(1)) if m else 0
+
+
 def run_ids(registry: Path) -> list[str]:
     check_registry(registry)
     root = runs_dir(registry)

@@ -14,14 +14,13 @@ nothing else changes: the CLI, the report and the resume logic stay the same.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 from miktcli.errors import MiktError
-from miktcli.registry.runs import Run
+from miktcli.registry.runs import Run, run_number
 from miktcli.studies.grid import Grid
 from miktcli.studies.report import Report
 from miktcli.studies.study import Study
@@ -45,7 +44,6 @@ class CellEvent:
     steps_per_sec: float | None = None
     attempts: int = 0  # tries of the chunk in flight on Ray (workers that died under it, plus one)
     error: str | None = None  # why a failed cell failed
-    started: float = field(default_factory=time.monotonic)
 
     @classmethod
     def of(cls, key: str, run: Run, state: str, error: str | None = None) -> CellEvent:
@@ -142,6 +140,6 @@ class Driver:
     def _kept(self) -> str:
         if not self.training:
             return "every finished cell is kept"
-        ids = sorted(self.training, key=lambda r: (len(r), r))
+        ids = sorted(self.training, key=run_number)
         return f"{ids[0]} keeps its last complete checkpoint" if len(ids) == 1 else (
             f"{', '.join(ids)} keep their last complete checkpoints")

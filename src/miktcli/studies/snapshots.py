@@ -28,7 +28,9 @@ from typing import NamedTuple
 
 from miktcli.errors import MiktError
 from miktcli.registry.files import write_bytes_atomic, write_text_atomic
-from miktcli.registry.runs import RUN_RE, lock_owner, open_run, runs_dir
+from miktcli.registry.runs import lock_owner, open_run, runs_dir
+from miktcli.studies.study import by_run_number
+from miktcli.studies.study import read_state as read_state_file
 
 IN_FLIGHT = "in-flight"
 IN_FLIGHT_FILES = ("checkpoint.safetensors", "metrics.jsonl", "run.json")  # the card last, as a run writes it
@@ -48,19 +50,7 @@ def read_state(results: Path) -> dict[str, str]:
     path = results / "state.json"
     if not path.is_file():
         raise MiktError(f"{results} holds no study (no state.json)", hint="name the study's results folder (--out)")
-    state = _read_json(path, "study state")
-    if not (isinstance(state, dict) and all(isinstance(k, str) and isinstance(v, str) for k, v in state.items())):
-        raise MiktError(f"{path}: damaged study state: expected an object of cell → run id")
-    return state
-
-
-def by_run_number(state: dict[str, str]) -> list[tuple[str, str]]:
-    """The cells in the order their runs were created (run9 before run10)."""
-    def number(cell_run: tuple[str, str]) -> int:
-        m = RUN_RE.fullmatch(cell_run[1])
-        return int(m.group(1)) if m else 0
-
-    return sorted(state.items(), key=number)
+    return read_state_file(path)
 
 
 def snapshot(results: Path, registry: Path, in_flight: bool = False) -> list[Copied]:

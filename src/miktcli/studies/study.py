@@ -23,7 +23,7 @@ from miktcli.errors import MiktError
 from miktcli.registry.cards import TeacherRef
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.locks import FileLock, lock_holder
-from miktcli.registry.runs import RUN_RE, Run, lock_owner, open_run, runs_dir
+from miktcli.registry.runs import Run, lock_owner, open_run, run_number, runs_dir
 from miktcli.registry.teachers import REF_RE, resolve
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key
 from miktcli.studies.pins import PINS_FILE, Pin, check_pin, pin_now, read_pins, write_pins
@@ -66,6 +66,26 @@ STATE_WRITE_EVERY_S = 1.0  # while preparing: state.json at most this often (and
 LOCK_FILE = ".lock"  # in the study folder: held by the one process driving the study (see Study.driving)
 
 
+def read_state(path: Path) -> dict[str, str]:
+    """A state.json's cell → run id map ({} where there is none yet); a damaged one is a one-line error."""
+    if not path.exists():
+        return {}
+    try:
+        cells = json.loads(path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
+        raise MiktError(f"{path}: damaged study state: {type(err).__name__}: {err}",
+                        hint="restore it, or move it away to start the study afresh") from err
+    if not (isinstance(cells, dict) and all(isinstance(k, str) and isinstance(v, str) for k, v in cells.items())):
+        raise MiktError(f"{path}: damaged study state: expected an object of cell → run id",
+                        hint="restore it, or move it away to start the study afresh")
+    return cells
+
+
+def by_run_number(cells: dict[str, str]) -> list[tuple[str, str]]:
+    """The (cell, run id) pairs in the order their runs were created (run9 before run10)."""
+    return sorted(cells.items(), key=lambda cell_run: run_number(cell_run[1]))
+
+
 class Study:
     def __init__(self, grid: Grid, out_dir: Path, registry: Path):
         requested(grid)  # the report sections it asks for, checked before any cell exists
@@ -81,7 +101,7 @@ class Study:
 
     def _load_state(self) -> None:
         # the runs of a state.json written by mikt 0.1 are adopted under today's keys
-        self.cells = compat.adopt_cells(self._read_state(), (
+        self.cells = compat.adopt_cells(read_state(self.state_path), (
             (cell_key(p, m, s), compat.cell_key(p.teachers, p.to, m.name, s)) for p, m, s in self.plan()))
 
     @contextmanager
@@ -118,19 +138,6 @@ class Study:
     @functools.cached_property
     def _cell_of(self) -> dict[str, tuple[PairSpec, MethodSpec, int]]:
         return {cell_key(*cell): cell for cell in self.plan()}
-
-    def _read_state(self) -> dict[str, str]:
-        if not self.state_path.exists():
-            return {}
-        try:
-            cells = json.loads(self.state_path.read_bytes().decode("utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
-            raise MiktError(f"{self.state_path}: damaged study state: {type(err).__name__}: {err}",
-                            hint="restore it, or move it away to start the study afresh") from err
-        if not (isinstance(cells, dict) and all(isinstance(k, str) and isinstance(v, str) for k, v in cells.items())):
-            raise MiktError(f"{self.state_path}: damaged study state: expected an object of cell → run id",
-                            hint="restore it, or move it away to start the study afresh")
-        return cells
 
     def _remember(self, key: str, run_id: str, write: bool = True) -> None:
         self.cells[key] = run_id
@@ -191,11 +198,7 @@ class Study:
     def _versions_used(self, refs: list[str]) -> dict[str, Pin]:
         """For each reference, the teacher the study's earliest-created run trained with, where one did."""
         used: dict[str, Pin] = {}
-        def created(cell_run: tuple[str, str]) -> int:
-            m = RUN_RE.fullmatch(cell_run[1])
-            return int(m.group(1)) if m else 0
-
-        for key, run_id in sorted(self.cells.items(), key=created):
+        for key, run_id in by_run_number(self.cells):
             cell = self._cell_of.get(key)
             if cell is None or not cell[1].uses_teachers or not (runs_dir(self.registry) / run_id).is_dir():
                 continue
