@@ -1,5 +1,6 @@
 """pip install and go: the built wheel, alone in a fresh venv, run from an empty folder, lists the packaged
-teachers and transfers from one; and pyproject.toml ships exactly the latest version of each teacher."""
+teachers, transfers from one and runs an example grid; and pyproject.toml ships exactly the latest version of
+each teacher."""
 
 from __future__ import annotations
 
@@ -111,6 +112,11 @@ def test_the_wheel_alone_runs_from_an_empty_folder(tmp_path):
     # a teacher trained here is numbered above the packaged ones and written here, never into the package
     out = run(mikt, "teacher", "train", "hopper", "--steps", 2048).stdout.strip()
     assert out == "hopper@v3" and (empty / "registry" / "teachers" / "hopper" / "v3.safetensors").is_file()
+
+    # the example grids ship too (benchmarks/ does not): one runs by name, its results in ./studies
+    assert "tiny" in {e["name"] for e in json.loads(run(mikt, "study", "examples", "--json").stdout)}
+    run(mikt, "study", "--example", "tiny")
+    assert (empty / "studies" / "tiny" / "results.md").is_file()
     assert _tree_digest(package) == before
 
 

@@ -16,7 +16,7 @@ from miktcli.cli import eval as eval_cmd
 from miktcli.cli import inspect as inspect_cmd
 from miktcli.cli import runs as runs_cmd
 from miktcli.cli import study as study_cmd
-from miktcli.cli import study_carry
+from miktcli.cli import study_carry, study_examples
 from miktcli.cli import teacher as teacher_cmd
 from miktcli.cli import transfer as transfer_cmd
 from miktcli.cli.console import debug_enabled, err, print_error
@@ -99,6 +99,7 @@ app.command("transfer", help=transfer_cmd.HELP, no_args_is_help=True, cls=Method
 app.command("eval", help=eval_cmd.HELP)(eval_cmd.eval_command)
 app.command("inspect", help=inspect_cmd.HELP)(inspect_cmd.inspect)
 app.command("runs")(runs_cmd.runs)
+study_cmd.app.command("examples")(study_examples.examples)
 study_cmd.app.command("snapshot")(study_carry.snapshot)
 study_cmd.app.command("restore")(study_carry.restore)
 app.add_typer(study_cmd.app, name="study")

@@ -25,12 +25,15 @@ Examples:
 
   mikt study grid.toml --report-only
 
+  mikt study --example tiny                              # a grid shipped with mikt (`mikt study examples`)
+
   mikt study snapshot studies/NAME   /   mikt study restore studies/NAME   # commit or carry its runs
 """
 
 
 class StudyGroup(TyperGroup):
-    """`mikt study GRID …` is `mikt study run GRID …`; `snapshot` and `restore` are the other commands."""
+    """`mikt study GRID …` (or `mikt study --example NAME …`) is `mikt study run …`; `examples`, `snapshot` and
+    `restore` are the other commands."""
 
     def parse_args(self, ctx, args):
         if args and args[0] not in self.commands and args[0] not in ctx.help_option_names:
@@ -43,7 +46,9 @@ app = typer.Typer(cls=StudyGroup, help=HELP, no_args_is_help=True)
 
 @app.command("run", help=HELP, no_args_is_help=True)
 def study(
-    grid_file: Path = typer.Argument(..., help="Grid TOML file."),
+    grid_file: Path = typer.Argument(None, help="Grid TOML file.", show_default=False),
+    example: str = typer.Option(None, "--example", metavar="NAME",
+                                help="Run a grid shipped with mikt instead of a file (`mikt study examples`)."),
     out: Path = typer.Option(None, "--out", help="Results folder (default: ./studies/GRID-NAME)."),
     report_only: bool = typer.Option(False, "--report-only", help="Only aggregate what has finished."),
     workers: int = typer.Option(None, "--workers", min=1, help="Run cells in parallel on a local Ray instance "
@@ -60,11 +65,12 @@ def study(
     from miktcli.studies.grid import load_grid
     from miktcli.studies.study import Study
 
+    grid_file, shown_as = _grid_source(grid_file, example)
     setup_torch()
     grid = load_grid(grid_file)
     st = Study(grid, out or Path("studies") / grid.name, registry)
     if report_only:
-        _show_report(st.report_finished(grid_file))
+        _show_report(st.report_finished(shown_as))
         return
     on_ray = workers is not None or address is not None
     live = Live(console=err, refresh_per_second=2) if on_ray and err.is_terminal else None
@@ -98,6 +104,17 @@ def study(
     if driver.failed:
         raise MiktError(f"{len(driver.failed)} cell(s) failed; the others are reported",
                         hint="see `mikt inspect RUN` for each failed run; running the study again retries them")
+
+
+def _grid_source(grid_file: Path | None, example: str | None) -> tuple[Path, str]:
+    """The grid file to read, and how to name it again in a hint (the way the user gave it)."""
+    if (grid_file is None) == (example is None):
+        raise typer.BadParameter("give a grid file or --example NAME (one of them)", param_hint="'GRID_FILE'")
+    if example is None:
+        return grid_file, str(grid_file)
+    from miktcli.examples import example as find_example
+
+    return find_example(example).path, f"--example {example}"
 
 
 def _executor(registry: Path, workers: int | None, address: str | None, eval_episodes: int, chunk_iterations: int):
