@@ -90,6 +90,7 @@ def test_a_study_refuses_runs_its_registry_lacks_unless_told_to_retrain(registry
     (out / "state.json").write_text(json.dumps(state))
     r = mikt("study", grid, "--out", out, code=1)
     assert "names 1 run(s)" in r.output and "run9" in r.output
+    assert f"that registry {registry} (from $MIKT_REGISTRY; no such folder) lacks" in r.output  # where it looked
     assert json.loads((out / "state.json").read_text()) == state  # untouched
     mikt("study", grid, "--out", out, "--retrain-missing")
     assert json.loads((out / "state.json").read_text()) == {"->hopper|vpg|0": "run1"}

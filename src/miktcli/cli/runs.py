@@ -20,6 +20,7 @@ def runs(
     registry: RegistryOption = DEFAULT_REGISTRY,
 ) -> None:
     """List runs (teacher training and transfers) with status and results."""
+    from miktcli.registry import location
     from miktcli.registry.runs import list_runs
 
     reg = registry
@@ -30,7 +31,8 @@ def runs(
                    + [{"run_id": run_id, "error": str(problem)} for run_id, problem in damaged])
         return
     if not found and not damaged:
-        err.print(f"no runs in {reg}")
+        err.print(f"no runs yet in registry {location.describe(reg)}")
+        err.print(f"Hint: {location.HINT}")
         return
     table = Table("run", "kind", "method", "from", "env", "status", "steps", "result", "created")
     for r in found:

@@ -30,6 +30,7 @@ from miktcli.cli.common import (
 from miktcli.cli.console import err, out, print_data, print_json
 from miktcli.cli.progress import training_progress
 from miktcli.errors import MiktError
+from miktcli.registry import location
 
 app = typer.Typer(
     help="Train teachers and browse the registry.\n\nExamples:\n\n  mikt teacher train centipede-four"
@@ -187,12 +188,14 @@ def list_teachers(
     else:
         _print_teacher_table(rows, registry)
     if unreadable:  # the readable ones are listed; the exit status says something is wrong
-        raise MiktError(f"{unreadable} teacher file(s) in {registry} cannot be used (see the list)")
+        raise MiktError(f"{unreadable} teacher file(s) in registry {location.describe(registry)} cannot be used "
+                        "(see the list)")
 
 
 def _print_teacher_table(rows: list[dict], registry: Path) -> None:
     if not rows:
-        err.print(f"no teachers in {registry}; train one with: mikt teacher train ENV")
+        err.print(f"no teachers in registry {location.describe(registry)}; train one with: mikt teacher train ENV")
+        err.print(f"Hint: {location.HINT}")
         return
     table = Table("teacher", "source", "env", "obs", "act", "hidden", "steps", "final return", "created")
     for r in rows:

@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from miktcli import limits
 from miktcli.errors import MiktError, describe_validation_error
+from miktcli.registry import location
 from miktcli.registry.cards import RUN_SCHEMA_VERSION, RunCard, now
 from miktcli.registry.files import (
     append_line,
@@ -256,7 +257,7 @@ def open_run(registry: Path, run_id: str) -> Run:
     if run_id == "last":
         ids = run_ids(registry)
         if not ids:
-            raise MiktError(f"no runs in {registry} yet")
+            raise MiktError(f"no runs yet in registry {location.describe(registry)}", hint=location.HINT)
         run_id = ids[-1]
     check_registry(registry)
     path = runs_dir(registry) / run_id
@@ -266,7 +267,8 @@ def open_run(registry: Path, run_id: str) -> Run:
             raise MiktError(f"{card_path} is missing: the folder is not a readable run",
                             hint="restore run.json from a backup, or remove the folder")
         known = ", ".join(run_ids(registry)) or "(none)"
-        raise MiktError(f"unknown run '{run_id}' in {registry}; known: {known}")
+        raise MiktError(f"unknown run '{run_id}' in registry {location.describe(registry)}; known: {known}",
+                        hint=location.HINT)
     try:
         raw = json.loads(card_path.read_bytes().decode("utf-8"))
     except UnicodeDecodeError:

@@ -18,6 +18,7 @@ import torch
 
 from miktcli.engine.policies import GaussianActorCritic
 from miktcli.errors import MiktError
+from miktcli.registry import location
 from miktcli.registry.cards import TEACHER_SCHEMA_VERSION, TeacherCard, TeacherVersion
 from miktcli.registry.files import read_card, read_tensors, save_with_card, tensors_sha256, verify_sha
 from miktcli.registry.packaged import packaged_teachers
@@ -116,8 +117,9 @@ def find(registry: Path, ref: str) -> TeacherFile:
     known = teacher_files(registry, name)
     if not known:
         names = ", ".join(list_names(registry)) or "(none)"
-        raise MiktError(f"unknown teacher '{name}' in {registry}; known: {names}",
-                        hint=f"train one with: mikt teacher train ENV --name {name}")
+        raise MiktError(f"unknown teacher '{name}' in registry {location.describe(registry)}; known: {names}",
+                        hint=f"train one with: mikt teacher train ENV --name {name}, or read another registry "
+                        f"(set {location.ENV_VAR} or pass --registry)")
     number = known[-1].version if version in (None, "latest") else int(version[1:])
     for f in known:
         if f.version == number:

@@ -20,6 +20,7 @@ from miktcli.engine.ppo import PPOConfig
 from miktcli.envs.fingerprint import describe_change, spec_fingerprint
 from miktcli.envs.spec import load_spec
 from miktcli.errors import MiktError
+from miktcli.registry import location
 from miktcli.registry.cards import TeacherRef
 from miktcli.registry.files import write_text_atomic
 from miktcli.registry.locks import FileLock, lock_holder
@@ -249,7 +250,8 @@ class Study:
         missing = self.missing_runs()
         if missing and not retrain_missing:
             ids = ", ".join(run_id for _, run_id in missing[:5]) + (" …" if len(missing) > 5 else "")
-            raise MiktError(f"{self.state_path} names {len(missing)} run(s) that {self.registry} lacks: {ids}",
+            raise MiktError(f"{self.state_path} names {len(missing)} run(s) that registry "
+                            f"{location.describe(self.registry)} lacks: {ids}",
                             hint=f"is this the study's registry? Restore its runs (mikt study restore {self.out_dir} "
                                  "--registry REGISTRY), or pass --retrain-missing to train those cells afresh")
         self._pin_teachers()
