@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import statistics
 from pathlib import Path
 
 import typer
 from rich.table import Table
+from rich.text import Text
 
 from miktcli.cli.common import JsonOption
 from miktcli.cli.console import err, out, print_data, print_error, print_json
@@ -124,6 +126,14 @@ def add(
         err.print(f"copied the XML{extra} to {added.xml_path.parent}")
     else:
         err.print(f"the spec uses {added.xml_path} in place ({added.why_in_place}): keep it there")
+    for note in added.notes:
+        prefix = ("warning: ", "yellow") if note.kind == "warning" else ""
+        err.print(Text.assemble(prefix, note.text, (f" (spec key: {note.key})", "dim")))
+    for result in added.probes:
+        what = "a zero action" if result.policy == "zero" else "random actions"
+        spread = f" ± {statistics.pstdev(result.returns):.1f}" if len(result.returns) > 1 else ""
+        err.print(f"probe, {what}: return {result.mean_return:.1f}{spread} over {result.mean_length:.0f} steps, "
+                  f"moved {statistics.fmean(result.distances):+.2f} m ({len(result.returns)} episode(s))")
     healthy = "none" if spec.healthy_z_min is None else f"root height > {spec.healthy_z_min}"
     err.print(f"wrote {added.spec_path} (health check: {healthy}; edit the file to change any term)")
     print_data(added.spec_path)

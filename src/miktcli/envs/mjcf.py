@@ -18,7 +18,12 @@ walker2d_v5.xml matches Hopper-v5 / Walker2d-v5 step for step (tests/test_mjcf.p
   healthy_angle_range on the root hinge, healthy_state_range on every qpos and qvel entry but the root position).
   Not healthy → terminated (when terminate_when_unhealthy). A simulation MuJoCo had to reset (NaN/Inf) also
   terminates. The time limit truncates.
-- reset: qpos = qpos0 + U(−s, s), qvel = U(−s, s), s = reset_noise_scale, in gymnasium's draw order.
+- reset: qpos = qpos0 + U(−s, s), qvel = U(−s, s), s = reset_noise_scale, in gymnasium's draw order; with
+  `keyframe`, the keyframe's qpos and qvel take the place of qpos0 and 0.
+- action: with `action_map = "raw"` (the default) the action is ctrl; with "ctrlrange" an action in [−1, 1]
+  spans each actuator's ctrlrange around its centre (CtrlMap). The control cost is on the action either way.
+- model edits: `remove` deletes bodies or geoms, `floor` adds a ground plane (edited_model); with neither, the
+  XML is compiled as it is.
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ from miktcli.errors import MiktError
 _DIVERGENCE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
                         mujoco.mjtWarning.mjWARN_BADQACC)
 _JOINT = mujoco.mjtJoint
+_JOINT_TRANSMISSIONS = (int(mujoco.mjtTrn.mjTRN_JOINT), int(mujoco.mjtTrn.mjTRN_JOINTINPARENT))
 
 
 def _one_line(text: str) -> str:
@@ -139,6 +145,28 @@ def load_model(path: Path) -> mujoco.MjModel:
         raise MiktError(f"{path}: not a valid MJCF model: {_one_line(err)}") from err
 
 
+def edited_model(path: Path, floor: bool, remove: list[str]) -> mujoco.MjModel:
+    """The model with the spec's edits: the named bodies and geoms deleted, a ground plane added. With no edit
+    it is `load_model(path)` itself (MjSpec compiles the same model, but the plain path stays the plain path)."""
+    if not floor and not remove:
+        return load_model(path)
+    load_model(path)  # the same checks and one-line errors as an unedited model
+    spec = mujoco.MjSpec.from_file(str(path))
+    for name in remove:
+        element = spec.body(name) or spec.geom(name)
+        if element is None or element == spec.worldbody:
+            bodies = ", ".join(b.name for b in spec.bodies if b.name and b != spec.worldbody)
+            raise MiktError(f"{path}: remove: no body or geom named '{name}' (bodies: {bodies or 'none'})")
+        spec.delete(element)
+    if floor:
+        plane = spec.worldbody.add_geom(name="mikt-floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05])
+        plane.rgba = [0.45, 0.5, 0.55, 1]
+    try:
+        return spec.compile()
+    except ValueError as err:
+        raise MiktError(f"{path}: the model does not compile with remove = {remove}: {_one_line(err)}") from err
+
+
 _NAME_ADDRESS = {mujoco.mjtObj.mjOBJ_BODY: "name_bodyadr", mujoco.mjtObj.mjOBJ_JOINT: "name_jntadr",
                  mujoco.mjtObj.mjOBJ_ACTUATOR: "name_actuatoradr", mujoco.mjtObj.mjOBJ_TENDON: "name_tendonadr",
                  mujoco.mjtObj.mjOBJ_SITE: "name_siteadr"}
@@ -186,8 +214,9 @@ def _has_jointed_ancestor(model: mujoco.MjModel, body: int) -> bool:
 
 
 def find_root(model: mujoco.MjModel, torso: str | None = None) -> Root:
-    """The torso and its root joint. Default torso: the body of the free joint, else the first body (in model
-    order) with slide joints and no jointed ancestor."""
+    """The torso and its root joint. Default torso: the body of the first free joint that carries actuated
+    joints below it (a free ball or box is not the robot), else the first body (in model order) with slide
+    joints and no jointed ancestor; with no free body carrying actuators, the first free joint's body."""
     if torso is not None:
         body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, torso)
         if body < 1:
@@ -198,7 +227,8 @@ def find_root(model: mujoco.MjModel, torso: str | None = None) -> Root:
         free = [int(model.jnt_bodyid[j]) for j in range(model.njnt) if model.jnt_type[j] == _JOINT.mjJNT_FREE]
         slide = [b for b in range(1, model.nbody) if not _has_jointed_ancestor(model, b)
                  and any(model.jnt_type[j] == _JOINT.mjJNT_SLIDE for j in _body_joints(model, b))]
-        candidates = free[:1] or slide[:1]
+        driven = _actuated_bodies(model)
+        candidates = [b for b in free if _subtree_holds(model, b, driven)][:1] or slide[:1] or free[:1]
     if not candidates:
         raise MiktError("no free or slide root joint: the body cannot move through the world")
     body = candidates[0]
@@ -220,9 +250,81 @@ def find_root(model: mujoco.MjModel, torso: str | None = None) -> Root:
                 horizontal, int(model.jnt_qposadr[hinges[0]]) if len(hinges) == 1 else None)
 
 
+def _actuated_bodies(model: mujoco.MjModel) -> set[int]:
+    """Bodies whose joints an actuator drives directly (joint transmissions)."""
+    joints = [int(model.actuator_trnid[i, 0]) for i in range(model.nu)
+              if int(model.actuator_trntype[i]) in _JOINT_TRANSMISSIONS]
+    return {int(model.jnt_bodyid[j]) for j in joints}
+
+
+def _subtree_holds(model: mujoco.MjModel, root: int, bodies: set[int]) -> bool:
+    """Whether one of `bodies` is `root` or lies below it; true as well when no actuator drives a joint
+    directly (tendon or site transmissions), so that such a model keeps the first free body."""
+    if not bodies:
+        return True
+    for body in bodies:
+        while body > 0:
+            if body == root:
+                return True
+            body = int(model.body_parentid[body])
+    return False
+
+
 def _body_joints(model: mujoco.MjModel, body: int) -> list[int]:
     start = int(model.body_jntadr[body])
     return list(range(start, start + int(model.body_jntnum[body]))) if start >= 0 else []
+
+
+def _keyframe_id(model: mujoco.MjModel, spec: MjcfSpec) -> int | None:
+    if spec.keyframe is None:
+        return None
+    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, spec.keyframe)
+    if key < 0:
+        names = [object_name(model, mujoco.mjtObj.mjOBJ_KEY, k) or f"#{k}" for k in range(model.nkey)]
+        raise MiktError(f"environment '{spec.name}': keyframe: the model has no keyframe named '{spec.keyframe}' "
+                        f"(keyframes: {', '.join(names) or 'none'})")
+    return key
+
+
+def is_position_actuator(model: mujoco.MjModel, i: int) -> bool:
+    """A servo: force = kp·(ctrl − length) (− kv·velocity), so ctrl is a target length (a joint angle)."""
+    kp = float(model.actuator_gainprm[i, 0])
+    return (int(model.actuator_biastype[i]) == int(mujoco.mjtBias.mjBIAS_AFFINE) and kp > 0
+            and float(model.actuator_biasprm[i, 1]) == -kp and float(model.actuator_biasprm[i, 0]) == 0.0)
+
+
+@dataclass(frozen=True)
+class CtrlMap:
+    """`action_map = "ctrlrange"`: an action in [-1, 1] onto each actuator's ctrlrange, piecewise linear so that
+    −1, 0 and 1 reach its low end, its centre and its high end. The centre of a position actuator is its
+    length at the reset pose (a zero action holds that pose); of any other, the middle of its range. An
+    actuator with no ctrlrange (ctrllimited off) gets the action as it is."""
+
+    low: np.ndarray
+    centre: np.ndarray
+    high: np.ndarray
+    limited: np.ndarray  # bool per actuator
+
+    @classmethod
+    def of(cls, model: mujoco.MjModel, qpos: np.ndarray) -> CtrlMap:
+        data = mujoco.MjData(model)
+        data.qpos[:] = qpos
+        # actuator_length at the reset pose, without the collision pass (a model MuJoCo cannot simulate is
+        # refused by `envs add`'s first step in one line, not here)
+        for stage in (mujoco.mj_kinematics, mujoco.mj_comPos, mujoco.mj_tendon, mujoco.mj_transmission):
+            stage(model, data)
+        low, high = model.actuator_ctrlrange[:, 0].copy(), model.actuator_ctrlrange[:, 1].copy()
+        limited = model.actuator_ctrllimited.astype(bool) & (low < high)
+        middle = (low + high) / 2
+        servo = np.array([is_position_actuator(model, i) for i in range(model.nu)], dtype=bool)
+        centre = np.clip(np.where(servo, data.actuator_length, middle), low, high)
+        return cls(low, np.where(limited, centre, 0.0), high, limited)
+
+    def __call__(self, action: np.ndarray) -> np.ndarray:
+        a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        scaled = np.where(a >= 0, self.centre + a * (self.high - self.centre),
+                          self.centre + a * (self.centre - self.low))
+        return np.where(self.limited, scaled, action)
 
 
 class MjcfEnv(gym.Env):
@@ -231,7 +333,7 @@ class MjcfEnv(gym.Env):
     def __init__(self, spec: MjcfSpec, render_mode: str | None = None, width: int = 480, height: int = 480):
         path = spec.xml_path()
         try:
-            self.model = load_model(path)
+            self.model = edited_model(path, spec.floor, spec.remove)
         except MiktError as err:
             raise MiktError(f"environment '{spec.name}': {err}") from err
         m = self.model
@@ -267,8 +369,15 @@ class MjcfEnv(gym.Env):
 
         obs_dim = len(self._kept_qpos) + m.nv + (6 * (m.nbody - 1) if spec.contact_forces else 0)
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (obs_dim,), np.float64)
-        bounds = m.actuator_ctrlrange.copy().astype(np.float32)
-        self.action_space = gym.spaces.Box(low=bounds[:, 0], high=bounds[:, 1], dtype=np.float32)
+        self._key = _keyframe_id(m, spec)
+        self._qpos_start = m.qpos0.copy() if self._key is None else m.key_qpos[self._key].copy()
+        self._qvel_start = np.zeros(m.nv) if self._key is None else m.key_qvel[self._key].copy()
+        self.ctrl_map = None if spec.action_map == "raw" else CtrlMap.of(m, self._qpos_start)
+        if self.ctrl_map is None:
+            bounds = m.actuator_ctrlrange.copy().astype(np.float32)
+            self.action_space = gym.spaces.Box(low=bounds[:, 0], high=bounds[:, 1], dtype=np.float32)
+        else:
+            self.action_space = gym.spaces.Box(-1.0, 1.0, (m.nu,), dtype=np.float32)
         self._elapsed = 0
 
     # --- state ----------------------------------------------------------------------------------------
@@ -327,8 +436,10 @@ class MjcfEnv(gym.Env):
         super().reset(seed=seed)
         m, d, s = self.model, self.data, self.spec_.reset_noise_scale
         mujoco.mj_resetData(m, d)
-        qpos = m.qpos0 + self.np_random.uniform(low=-s, high=s, size=m.nq)  # gymnasium's draw order
-        qvel = np.zeros(m.nv) + self.np_random.uniform(low=-s, high=s, size=m.nv)
+        if self._key is not None:
+            mujoco.mj_resetDataKeyframe(m, d, self._key)  # its act and ctrl too; qpos and qvel are set below
+        qpos = self._qpos_start + self.np_random.uniform(low=-s, high=s, size=m.nq)  # gymnasium's draw order
+        qvel = self._qvel_start + self.np_random.uniform(low=-s, high=s, size=m.nv)
         d.qpos[:], d.qvel[:] = qpos, qvel
         mujoco.mj_forward(m, d)
         self._elapsed = 0
@@ -349,7 +460,7 @@ class MjcfEnv(gym.Env):
         action = np.asarray(action)  # the cost is computed in the action's own dtype, as gymnasium does
         before = self._forward_position()
         diverged_before = self._divergence_count()
-        d.ctrl[:] = action
+        d.ctrl[:] = action if self.ctrl_map is None else self.ctrl_map(action)
         mujoco.mj_step(m, d, nstep=self.frame_skip)
         mujoco.mj_rnePostConstraint(m, d)  # cfrc_ext is only filled by this call
         after = self._forward_position()

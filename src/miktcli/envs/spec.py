@@ -108,6 +108,15 @@ class MjcfSpec(_SpecBase):
                                     "unclipped")
     contact_forces: bool = Field(False, description="append clipped cfrc_ext of every body but the world")
     contact_force_range: tuple[float, float] = (-1.0, 1.0)
+    keyframe: str | None = Field(None, description="reset to this keyframe of the model (its qpos and qvel), plus "
+                                 "the reset noise; none: the model's default pose (qpos0)")
+    action_map: Literal["raw", "ctrlrange"] = Field(
+        "raw", description="raw: the action is the actuators' ctrl as it is (MuJoCo clamps it to ctrlrange); "
+        "ctrlrange: an action in [-1, 1] spans each actuator's ctrlrange, 0 at its centre (a position "
+        "actuator's centre is the reset pose, so a zero action holds it)")
+    floor: bool = Field(False, description="add a ground plane at z = 0 (for a model that has none)")
+    remove: list[str] = Field(default_factory=list, description="bodies or world geoms deleted from the model "
+                              "before it is compiled (a ball, walls, a height field)")
     _folder: Path | None = PrivateAttr(default=None)  # the spec file's folder, which `xml` is relative to
 
     @model_validator(mode="after")
@@ -120,6 +129,8 @@ class MjcfSpec(_SpecBase):
                 raise ValueError(f"{field} {list(pair)} is empty (low must be below high)")
         if None not in (self.healthy_z_min, self.healthy_z_max) and not self.healthy_z_min < self.healthy_z_max:
             raise ValueError(f"healthy_z_min {self.healthy_z_min} must be below healthy_z_max {self.healthy_z_max}")
+        if len(set(self.remove)) != len(self.remove):
+            raise ValueError(f"remove {self.remove} names a body or geom twice")
         return self
 
     def located(self, folder: Path) -> MjcfSpec:
@@ -135,6 +146,10 @@ class MjcfSpec(_SpecBase):
                             "read from a file")
         return self._folder / path
 
+
+# Fields added to MjcfSpec after runs had recorded specs (and their fingerprints) without them: at their default
+# they are left out of a spec's record, so that an older run's spec still reads as the same task.
+MJCF_LATER_DEFAULTS: dict[str, Any] = {"keyframe": None, "action_map": "raw", "floor": False, "remove": []}
 
 AnySpec = CentipedeSpec | GymnasiumSpec | MjcfSpec
 EnvSpec = Annotated[AnySpec, Field(discriminator="family")]

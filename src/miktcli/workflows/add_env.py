@@ -14,20 +14,44 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
 
+from miktcli.envs import model_checks
 from miktcli.envs.factory import env_dims, model_facts
-from miktcli.envs.mjcf import MjcfEnv, Root, absolute_references, body_name, find_root, load_model, model_files
+from miktcli.envs.mjcf import (
+    MjcfEnv,
+    Root,
+    absolute_references,
+    body_name,
+    edited_model,
+    find_root,
+    load_model,
+    model_files,
+)
+from miktcli.envs.mujoco_warnings import capture_mujoco_warnings, last_mujoco_warning, mujoco_warning_count
+from miktcli.envs.probe import ProbeResult, probe
 from miktcli.envs.spec import SPEC_NAME_RE, MjcfSpec, load_spec_file, spec_names, user_specs_dir
 from miktcli.errors import MiktError
 from miktcli.registry.files import write_bytes_atomic
 
-# healthy_z_min of an added model: this fraction of the torso's starting height (gymnasium's Hopper, Walker2d
-# and Humanoid stop at 0.56, 0.64 and 0.71 of theirs); no other health check, nothing else but defaults.
+# healthy_z_min of an added model: this fraction of the torso's height at the reset pose (gymnasium's Hopper,
+# Walker2d and Humanoid stop at 0.56, 0.64 and 0.71 of theirs); no other health check.
 HEALTHY_HEIGHT_FRACTION = 0.5
+HOME_KEYFRAME = "home"  # MuJoCo Menagerie's name for the standing pose its legged robots start from
+RANDOM_PROBE_EPISODES = 2
+
+
+@dataclass(frozen=True)
+class Note:
+    """A choice `envs add` made from the model, or something that may spoil the task, with the spec key that
+    changes it."""
+
+    kind: str  # "chose" or "warning"
+    text: str
+    key: str
 
 
 @dataclass
@@ -40,6 +64,8 @@ class AddedEnv:
     root: str  # the chosen torso and its root joint, in words
     facts: dict
     why_in_place: str = ""  # when not copied: what keeps the model from being copied
+    notes: list[Note] = field(default_factory=list)
+    probes: list[ProbeResult] = field(default_factory=list)  # zero action, random actions, on the written spec
 
 
 def check_simulates(env: MjcfEnv, xml: Path) -> None:
@@ -85,11 +111,67 @@ def spec_toml(spec: MjcfSpec) -> str:
     return "\n".join(lines) + "\n"
 
 
-def default_terms(model: mujoco.MjModel, root: Root) -> dict:
-    data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)
-    height = float(data.xpos[root.body][2])
+def model_choices(model: mujoco.MjModel, root: Root) -> tuple[dict, list[Note]]:
+    """The spec fields decided from the model's file alone, and what was decided or found, in words: the
+    `home` keyframe as the reset pose, actions spanning each ctrlrange, a floor where there is none, other free
+    bodies removed."""
+    fields: dict = {"action_map": "ctrlrange"}
+    notes = []
+    keys = model_checks.keyframe_names(model)
+    if HOME_KEYFRAME in keys:
+        fields["keyframe"] = HOME_KEYFRAME
+        notes.append(Note("chose", f"resets to the model's '{HOME_KEYFRAME}' keyframe", "keyframe"))
+    elif keys:
+        notes.append(Note("chose", f"resets to the default pose; the model's keyframes ({', '.join(keys)}) are "
+                          "not used", "keyframe"))
+    unlimited = model_checks.unlimited_actuators(model)
+    if unlimited:
+        notes.append(Note("warning", f"{len(unlimited)} actuator(s) have no ctrlrange ({', '.join(unlimited[:4])}"
+                          f"{', …' if len(unlimited) > 4 else ''}): the policy's actions reach them unscaled; "
+                          "give them a ctrlrange in the XML", "action_map"))
+    if not model_checks.has_floor(model):
+        fields["floor"] = True
+        notes.append(Note("warning", "the model has no floor (the robot would fall into the void): adds a ground "
+                          "plane at z = 0", "floor"))
+    extra = model_checks.extra_free_bodies(model, root)
+    if extra:
+        notes.append(Note("warning", f"free bodies that are not the robot ({', '.join(extra)}) would be in the "
+                          "observation: removes them", "remove"))
+    fields_height = model_checks.height_fields(model)
+    if fields_height and model_checks.has_floor(model, besides=fields_height):
+        notes.append(Note("warning", f"height field(s) {', '.join(fields_height)} beside the floor: their "
+                          "collisions cost time on every step: removes them", "remove"))
+    else:
+        fields_height = []  # the ground itself: kept
+    if extra or fields_height:
+        fields["remove"] = extra + fields_height
+    return fields, notes
+
+
+def reset_terms(model: mujoco.MjModel, root: Root, keyframe: str | None) -> dict:
+    """healthy_z_min from the torso's height at the reset pose."""
+    qpos = model.qpos0 if keyframe is None else model.key(keyframe).qpos
+    height = model_checks.torso_height(model, root, qpos)
     return {"healthy_z_min": round(HEALTHY_HEIGHT_FRACTION * height, 3)} if height > 0 else {}
+
+
+def survival_choice(env: MjcfEnv) -> tuple[dict, list[Note]]:
+    """The healthy bonus off where a zero action lasts the whole episode: standing still would otherwise pay
+    max_episode_steps × healthy_reward, more than walking earns early on."""
+    standing = probe(env, "zero")
+    if standing.fell[0]:
+        return {}, []
+    return {"healthy_reward": 0.0}, [Note(
+        "chose", f"a zero action stands for the whole episode ({standing.lengths[0]} steps): no healthy bonus, so "
+        "standing still earns nothing", "healthy_reward")]
+
+
+def probe_notes(probes: list[ProbeResult], spec: MjcfSpec) -> list[Note]:
+    if any(any(p.fell) for p in probes) or not spec.terminate_when_unhealthy:
+        return []
+    check = "no health check" if spec.healthy_z_min is None else f"root height > {spec.healthy_z_min}"
+    return [Note("warning", f"no probe episode ended by the health check ({check}): the body may be unable to "
+                 "fall, so 'healthy' never ends an episode; raise healthy_z_min", "healthy_z_min")]
 
 
 def add_mjcf(xml: Path, name: str, torso: str | None = None, folder: Path | None = None) -> AddedEnv:
@@ -108,7 +190,10 @@ def add_mjcf(xml: Path, name: str, torso: str | None = None, folder: Path | None
     for path in (target_toml, target_dir):
         if path.exists():
             raise MiktError(f"{path} exists already", hint="choose another --name, or remove it")
+    capture_mujoco_warnings()  # the compiler's warnings become one note, not a line per compilation
+    warned_before = mujoco_warning_count()
     model = load_model(xml)
+    compiler_warned = mujoco_warning_count() > warned_before
     if model.nu == 0:
         raise MiktError(f"{xml}: the model has no actuator (nothing for a policy to drive)")
     try:
@@ -138,14 +223,30 @@ def add_mjcf(xml: Path, name: str, torso: str | None = None, folder: Path | None
             xml_field, built_from = f"{name}/{xml.name}", (staging / xml.name).resolve()
         else:
             files, xml_field, built_from = [], str(xml.resolve()), xml.resolve()
-        env = MjcfEnv(_spec(name, str(built_from), root, model, torso, obs_dim=1, act_dim=model.nu))
+        chosen, notes = model_choices(model, root)
+        if compiler_warned:
+            notes.insert(0, Note("warning", f"MuJoCo: {' '.join(last_mujoco_warning().split())}", "xml"))
+        edited = edited_model(built_from, chosen.get("floor", False), chosen.get("remove", []))
+        try:
+            edited_root = find_root(edited, torso or body_name(model, root.body))
+        except MiktError as err:
+            raise MiktError(f"{xml}: {err}") from err
+        chosen |= reset_terms(edited, edited_root, chosen.get("keyframe"))
+        env = MjcfEnv(_spec(name, str(built_from), root, model, torso, obs_dim=1, act_dim=model.nu, **chosen))
         check_simulates(env, xml)  # what every later command does first: reset and step
         obs_dim, act_dim = env_dims(env)
+        survival, more = survival_choice(env)
+        env.close()
+        chosen |= survival
+        notes += more
+        env = MjcfEnv(_spec(name, str(built_from), root, model, torso, obs_dim=obs_dim, act_dim=act_dim, **chosen))
+        probes = [probe(env, "zero"), probe(env, "random", RANDOM_PROBE_EPISODES)]
         facts = model_facts(env)
         root_words = env.root.describe(env.model)
         env.close()
         spec = _spec(name, xml_field, root, model, torso, obs_dim=obs_dim, act_dim=act_dim,
-                     notes=f"added with `mikt envs add` from {xml.name}")
+                     notes=f"added with `mikt envs add` from {xml.name}", **chosen)
+        notes += probe_notes(probes, spec)
         folder.mkdir(parents=True, exist_ok=True)
         # Two `envs add --name X` at once: each step below refuses to replace what the other made, so one wins
         # and the other gets "exists already", and neither removes the winner's files.
@@ -174,9 +275,8 @@ def add_mjcf(xml: Path, name: str, torso: str | None = None, folder: Path | None
     finally:
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)
-    return AddedEnv(spec, target_toml, spec.xml_path(), copied, files, root_words, facts, why)
+    return AddedEnv(spec, target_toml, spec.xml_path(), copied, files, root_words, facts, why, notes, probes)
 
 
 def _spec(name: str, xml: str, root: Root, model: mujoco.MjModel, torso: str | None, **fields) -> MjcfSpec:
-    return MjcfSpec(name=name, family="mjcf", xml=xml, torso=torso or body_name(model, root.body),
-                    **default_terms(model, root), **fields)
+    return MjcfSpec(name=name, family="mjcf", xml=xml, torso=torso or body_name(model, root.body), **fields)
