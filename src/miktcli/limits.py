@@ -19,7 +19,8 @@ MAX_ROUNDING = 2  # rounding --steps up to whole rollouts may at most double it 
 
 # Evaluation and rendering.
 MAX_EPISODES = 10_000  # evaluation episodes: ~10M env steps with 1,000-step episodes, hours on one core
-MAX_VIDEO_FRAMES = 3_000  # frames are held in memory before encoding: 3,000 of 480×480 RGB ≈ 2 GB, 150 s at 20 fps
+MAX_VIDEO_FRAMES = 3_000  # one video: 50 s at 60 fps, 150 s at 20 fps, minutes to render; streamed to the
+# encoder, but `evaluate_policy` (the library) still holds its frames: 3,000 of 480×480 RGB ≈ 2 GB
 
 # Files read from users (imports, statistics, teacher and checkpoint files).
 MAX_JSON_BYTES = 16 * MiB  # --obs-stats and env spec files: a 100,000-dim mean and var take ~4 MB, a spec ~1 KB
