@@ -238,6 +238,19 @@ def _stray_folders(directory: Path | None) -> list[Path]:
     return [path for folder in _folders(directory) for path in sorted(folder.glob("*.toml")) if path.is_dir()]
 
 
+def _searched(directory: Path | None) -> str:
+    """The spec folders a lookup read, each said with how it was chosen, for a name it did not find."""
+    if directory is not None:
+        return str(Path(directory).resolve())
+    mine = user_specs_dir()
+    how = "$MIKT_ENVSPECS" if os.environ.get("MIKT_ENVSPECS") else "./envspecs, as MIKT_ENVSPECS is unset"
+    missing = "" if mine.is_dir() else "; no such folder"
+    shipped = shipped_specs_dir()
+    if mine.is_dir() and mine.resolve() == shipped.resolve():
+        return f"{shipped.resolve()} (the shipped specs, also {how})"
+    return f"{mine.resolve()} ({how}{missing}), then the shipped specs"
+
+
 def spec_names(directory: Path | None = None) -> list[str]:
     return list(_spec_files(directory))
 
@@ -248,7 +261,9 @@ def load_spec(name: str, directory: Path | None = None) -> AnySpec:
     files = _spec_files(directory)
     if name not in files:
         known = ", ".join(files) or "(none)"
-        raise MiktError(f"unknown environment '{name}'; known: {known}")
+        raise MiktError(f"unknown environment '{name}'; known: {known} (looked in {_searched(directory)})",
+                        hint="add it with `mikt envs add FILE.xml --name NAME`, or run from the folder that holds "
+                        "your envspecs/ (or set MIKT_ENVSPECS)")
     return load_spec_file(files[name])
 
 
