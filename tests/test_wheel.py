@@ -109,6 +109,19 @@ def test_the_wheel_alone_runs_from_an_empty_folder(tmp_path):
     card = json.loads((empty / "registry" / "runs" / "run1" / "run.json").read_text())
     assert card["teachers"][0]["name"] == "centipede-four" and card["teachers"][0]["version"] == 2
 
+    # the run's teacher-free student becomes a teacher, and teaches the next body
+    assert run(mikt, "teacher", "add", "run1", "--name", "six-from-four").stdout.strip() == "six-from-four@v1"
+    run(mikt, "transfer", "--from", "six-from-four", "--to", "centipede-eight", "--steps", 2048,
+        "--eval-episodes", 1)
+    card = json.loads((empty / "registry" / "runs" / "run2" / "run.json").read_text())
+    assert card["teachers"][0]["name"] == "six-from-four"
+
+    # a robot of one's own: the spec the package writes is decided from the model (home keyframe, no bonus)
+    quadruped = ROOT / "tests" / "fixtures" / "robots" / "quadruped" / "scene.xml"
+    added = run(mikt, "envs", "add", quadruped, "--name", "quad")
+    assert "resets to the model's 'home' keyframe" in added.stderr and "probe, a zero action" in added.stderr
+    assert 'keyframe = "home"' in (empty / "envspecs" / "quad.toml").read_text()
+
     # a teacher trained here is numbered above the packaged ones and written here, never into the package
     out = run(mikt, "teacher", "train", "hopper", "--steps", 2048).stdout.strip()
     assert out == "hopper@v3" and (empty / "registry" / "teachers" / "hopper" / "v3.safetensors").is_file()
