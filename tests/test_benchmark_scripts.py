@@ -25,6 +25,30 @@ def load_script(name: str):
     return module
 
 
+class Ran:
+    def __init__(self, returncode: int, stdout: str, stderr: str):
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
+
+
+def snapshot_script(*args, check: bool = True) -> Ran:
+    """`python benchmarks/snapshot_study.py ARGS`, run in this process (a fresh interpreter per call cost these
+    tests a minute): its exit code, what it printed, and its `sys.exit` message as stderr."""
+    import contextlib
+    import io
+    import runpy
+    from unittest import mock
+
+    stdout, code, message = io.StringIO(), 0, ""
+    with mock.patch.object(sys, "argv", ["snapshot_study.py", *map(str, args)]), contextlib.redirect_stdout(stdout):
+        try:
+            runpy.run_path(str(BENCHMARKS / "snapshot_study.py"), run_name="__main__")
+        except SystemExit as stop:
+            code, message = (1, str(stop.code)) if isinstance(stop.code, str) else (stop.code or 0, "")
+    if check and code:
+        raise AssertionError(f"snapshot_study.py {args} exited {code}: {message}")
+    return Ran(code, stdout.getvalue(), message)
+
+
 GRID = ('name = "{name}"\nsteps = 6144\nseeds = {seeds}\nmarks = [4096, 6144]\nbaseline = "{baseline}"\n{pairs}'
         '[[methods]]\nname = "mikt"\nmethod = "mikt"\n{extra}')
 
@@ -140,17 +164,17 @@ def test_snapshots_restore_into_a_fresh_registry_so_the_study_skips_finished_cel
     unfinished = study.prepare("test")[1][1].id  # run1-run3 prepared; seed 1's and seed 2's never train
     finished = fake_run(registry, "hopper", "vpg", 0, [1, 2, 3], 5)  # run4, seed 0's
     study._remember(key0, finished)
-    script = [sys.executable, str(BENCHMARKS / "snapshot_study.py"), str(out), "--registry", str(registry)]
-    subprocess.run(script, check=True, capture_output=True)
+    script = [out, "--registry", registry]
+    snapshot_script(*script)
     assert (out / "runs" / finished / "metrics.jsonl").exists() and not (out / "runs" / unfinished).exists()
     lost = (registry / "runs" / unfinished).rename(tmp_path / "lost")  # a run the registry lacks: named,
     shutil.rmtree(out / "runs")                                        # the others still copied
-    r = subprocess.run(script, check=True, capture_output=True, text=True)
+    r = snapshot_script(*script)
     assert f"{unfinished}  {key1}: not in" in r.stdout and (out / "runs" / finished / "run.json").exists()
     lost.rename(registry / "runs" / unfinished)
 
     saved = registry.rename(tmp_path / "old-registry")  # a fresh clone: the committed results, no run folders
-    subprocess.run([*script, "--restore"], check=True, capture_output=True)
+    snapshot_script(*script, "--restore")
     assert json.loads((out / "state.json").read_text()) == {key0: finished}  # unfinished cells start afresh
     cells = dict(Study(grid, out, registry).prepare("test"))
     assert cells[key0].id == finished and cells[key0].card.status == "completed"  # not trained again
@@ -162,8 +186,7 @@ def test_snapshots_restore_into_a_fresh_registry_so_the_study_skips_finished_cel
     shutil.rmtree(other / "runs" / finished)
     fake_run(other, "hopper", "vpg", 2, [0], 0)  # another run, same id as the snapshot's
     state_before = (out / "state.json").read_text()
-    r = subprocess.run([sys.executable, str(BENCHMARKS / "snapshot_study.py"), str(out), "--registry", str(other),
-                        "--restore"], capture_output=True, text=True)
+    r = snapshot_script(out, "--registry", other, "--restore", check=False)
     assert r.returncode == 1 and "already has other runs under these ids: run4" in r.stderr
     assert (out / "state.json").read_text() == state_before
 
@@ -185,19 +208,19 @@ def test_an_in_flight_snapshot_carries_an_unfinished_run_to_another_machine(regi
     ctrl_c_at_second_update()
     (run_id,) = json.loads((out / "state.json").read_text()).values()
     assert open_run(registry, run_id).card.steps_done == 2048
-    script = [sys.executable, str(BENCHMARKS / "snapshot_study.py"), str(out), "--registry", str(registry)]
+    script = [out, "--registry", registry]
 
     lock = RunLock(open_run(registry, run_id)).acquire()  # a study still training it: refused, nothing kept
-    r = subprocess.run([*script, "--in-flight"], capture_output=True, text=True)
+    r = snapshot_script(*script, "--in-flight", check=False)
     assert r.returncode == 1 and f"{run_id} still training: its checkpoint could change" in r.stderr
     assert not (out / "in-flight").exists()
     lock.release()
 
-    subprocess.run([*script, "--in-flight"], check=True, capture_output=True)
+    snapshot_script(*script, "--in-flight")
     kept = out / "in-flight" / run_id
     assert sorted(p.name for p in kept.iterdir()) == ["checkpoint.safetensors", "metrics.jsonl", "run.json"]
     registry.rename(tmp_path / "old-registry")  # another machine: the committed results only
-    r = subprocess.run([*script, "--restore"], check=True, capture_output=True, text=True)
+    r = snapshot_script(*script, "--restore")
     assert "in flight: resumes" in r.stdout
     updates, update = [], PPOTrainer.update
     monkeypatch.setattr(PPOTrainer, "update", lambda self, batch: updates.append(1) or update(self, batch))
@@ -206,7 +229,7 @@ def test_an_in_flight_snapshot_carries_an_unfinished_run_to_another_machine(regi
     run = open_run(registry, run_id)  # resumed from its checkpoint under its own id: two updates, not three
     assert run.card.status == "completed" and [m["steps"] for m in run.read_metrics()] == [2048, 4096, 6144]
     assert len(updates) == 2
-    subprocess.run(script, check=True, capture_output=True)  # the finished snapshot supersedes the in-flight one
+    snapshot_script(*script)  # the finished snapshot supersedes the in-flight one
     assert (out / "runs" / run_id / "run.json").exists() and not kept.exists()
 
 def test_every_committed_grid_loads():
