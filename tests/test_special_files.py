@@ -18,11 +18,25 @@ def run_cli(*args, registry, timeout=60):
                           timeout=timeout, env=env)
 
 
+@pytest.fixture(scope="module")
+def trained_registry(tmp_path_factory):
+    """A registry with a tiny teacher and one finished transfer, trained once for the module: each test breaks
+    its own copy (the FIFO cases differ only in the file they replace)."""
+    registry = tmp_path_factory.mktemp("trained") / "registry"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MIKT_REGISTRY", str(registry))
+        mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+        run = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", "--steps", 2048, "--eval-episodes",
+                              1, "--coupling-schedule", "constant", "--json").stdout)["run"]
+    return registry, run
+
+
 @pytest.fixture()
-def finished_run(registry):
-    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
-    run = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", "--steps", 2048, "--eval-episodes", 1,
-                          "--coupling-schedule", "constant", "--json").stdout)["run"]
+def finished_run(registry, trained_registry):
+    import shutil
+
+    template, run = trained_registry
+    shutil.copytree(template, registry)
     return registry / "runs" / run
 
 
