@@ -37,13 +37,16 @@ def runs(registry):
 
 
 def rewrite_teacher(path, update=None, tensors=None):
-    """Rewrite a teacher file consistently (card sha256 matches): well-formed but wrong."""
+    """Rewrite a teacher file consistently (card sha256 matches the policy's tensors, those but the carried
+    environment's `env/…`): well-formed but wrong."""
     from safetensors import safe_open
+
+    from miktcli.registry.carried import split_carried
 
     with safe_open(str(path), "pt") as f:
         card = TeacherCard.model_validate_json(f.metadata()[CARD_KEY])
     tensors = st_load(path.read_bytes()) if tensors is None else tensors
-    card = card.model_copy(update={**(update or {}), "tensors_sha256": tensors_sha256(tensors)})
+    card = card.model_copy(update={**(update or {}), "tensors_sha256": tensors_sha256(split_carried(tensors)[0])})
     path.write_bytes(st_save(tensors, metadata={CARD_KEY: card.model_dump_json()}))
 
 

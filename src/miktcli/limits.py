@@ -32,6 +32,9 @@ MAX_METRICS_LINE_BYTES = 1 * MiB  # one iteration's row: ~1.3 KB, ~10 KB with ma
 
 MAX_MODEL_FILE_BYTES = 256 * MiB  # one MJCF file or mesh, texture, height field, skin: Menagerie's largest ~30 MB
 MAX_MODEL_BYTES = 1024 * MiB  # all of a model's files together; MuJoCo holds them in memory several times over
+MAX_CARRIED_MODEL_BYTES = 64 * MiB  # a spec and its model files that a run folder and each teacher file carry
+# (registry/carried.py): Menagerie's robots take a few MB; copied once per run and held in memory with a teacher,
+# a larger model stays where its spec lies
 
 # Model sizes (checked before a run folder exists).
 MAX_LAYER_WIDTH = 4096  # --hidden: the paper's layers are 64 wide; 4096x4096 is 64 MB of float32 per layer

@@ -131,6 +131,27 @@ def parse_hidden(text: str) -> list[int]:
     return sizes
 
 
+def note_env_copy(run) -> None:
+    """Say on stderr when a new run cannot carry its environment (registry/carried.py): `eval` and `--resume`
+    then need its spec in a spec folder, as before."""
+    from miktcli.cli.console import err
+    from miktcli.registry.carried import why_no_copy
+
+    why = why_no_copy(run.path, run.card.env)
+    if why:
+        err.print(f"note: {run.id} does not carry environment '{run.card.env}' ({why}): eval and --resume from "
+                  "another folder need its spec in a spec folder")
+
+
+def note_teacher_env(card) -> None:
+    """Say on stderr when a published teacher does not carry its environment."""
+    from miktcli.cli.console import err
+
+    if not card.env_files:
+        err.print(f"note: {card.ref} does not carry environment '{card.env}': eval and transfers to it from "
+                  "another folder need its spec in a spec folder")
+
+
 def note_compile(run) -> None:
     """Say on stderr which update runs (compiled or eager) and why, as the card records it."""
     from miktcli.cli.console import err

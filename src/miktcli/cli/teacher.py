@@ -21,7 +21,9 @@ from miktcli.cli.common import (
     change_update_mode_on_resume,
     command_line,
     note_compile,
+    note_env_copy,
     note_rounding,
+    note_teacher_env,
     parse_hidden,
     parse_ppo_settings,
     refuse_options_with_resume,
@@ -72,6 +74,7 @@ def train(
                             hidden=parse_hidden(hidden), command=command_line(), compile_loss=compile_loss,
                             ppo_settings=parse_ppo_settings(ppo))
         note_rounding(steps, run.card.total_steps)
+        note_env_copy(run)
     err.print(f"{run.id}: teacher on {run.card.env}, {run.card.total_steps} steps, seed {run.card.seed} → {run.path}")
     note_compile(run)
     try:
@@ -84,6 +87,7 @@ def train(
             hint=f"continue with: mikt teacher train --resume {run.id}",
         ) from None
     err.print(f"final mean return {card.final_return}, best {card.best_return}")
+    note_teacher_env(card)
     print_data(card.ref)
 
 
@@ -100,6 +104,7 @@ def add_command(
     card = add_student_as_teacher(registry, run, name)
     taught = ", ".join(card.trained_with) or "no teacher"
     err.print(f"added {card.source_run}'s student ({card.method} from {taught}, on {card.env}) as {card.ref}")
+    note_teacher_env(card)
     print_data(card.ref)
 
 
@@ -127,6 +132,7 @@ def import_command(
     card = import_teacher(registry, path, fmt=fmt, env=env, name=name, obs_stats=obs_stats, activation=activation)
     err.print(f"imported {path.name} ({fmt}, {card.activation}, hidden {card.pi_hidden}) as {card.ref}")
     _warn_if_shadowing(registry, card, fmt)
+    note_teacher_env(card)
     for what in ("activation", "obs_stats"):  # say what was assumed rather than read
         if str(card.imported_from.get(what, "")).startswith(("assumed", "none given")):
             err.print(f"{what}: {card.imported_from[what]}")

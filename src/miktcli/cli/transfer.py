@@ -19,6 +19,7 @@ from miktcli.cli.common import (
     change_update_mode_on_resume,
     command_line,
     given_on_command_line,
+    note_env_copy,
     note_rounding,
     parse_hidden,
     parse_ppo_settings,
@@ -161,6 +162,7 @@ def transfer(
             raise
         run = started[0] if isinstance(started, list) else started
         note_rounding(steps, run.card.total_steps)
+        note_env_copy(run)
     group = together_group(reg, run)
     if len(group) > 1 or run.card.seeds_together:
         report_together(group, train_together_run(group, reg, eval_episodes), as_json)

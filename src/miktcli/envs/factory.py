@@ -68,9 +68,29 @@ def _make_gymnasium(spec: GymnasiumSpec, render_mode: str | None) -> gym.Env:
                             f"{type(err).__name__}: {err}") from err
 
 
+class SpecName(str):
+    """An environment's name bound to the spec it was resolved to (from the spec folders, or the copy a run or
+    teacher carries: registry/carried.py). It reads, prints and serialises as the plain name, and `make_env`
+    builds the spec it holds rather than whatever the spec folders hold under that name now, so every call
+    that takes an env's name takes a resolved one."""
+
+    spec: Spec
+
+    def __new__(cls, spec: Spec) -> SpecName:
+        named = super().__new__(cls, spec.name)
+        named.spec = spec
+        return named
+
+    def __reduce__(self):  # pickled (a Ray worker) with its spec, which is rebuilt from its fields
+        return SpecName, (self.spec,)
+
+
 def make_env(spec: Spec | str, render_mode: str | None = None) -> gym.Env:
-    """Build the environment a spec describes and check it has the dimensions the spec states."""
-    if isinstance(spec, str):
+    """Build the environment a spec describes and check it has the dimensions the spec states. A name is
+    looked up in the spec folders, unless it is a SpecName, which holds its spec."""
+    if isinstance(spec, SpecName):
+        spec = spec.spec
+    elif isinstance(spec, str):
         spec = load_spec(spec)
     capture_mujoco_warnings()
     if render_mode is not None:

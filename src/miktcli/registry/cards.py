@@ -16,10 +16,11 @@ from miktcli.engine.ppo import PPOConfig
 
 # A card is written with the newest version this code knows; a reader refuses a newer one with a message
 # instead of a validation error about a field it has never heard of. Every version reads every older one.
-# Teacher: 2 adds `code_history`, 3 `obs_clip`, 4 `method` and `trained_with`. Run: 2 adds the status
+# Teacher: 2 adds `code_history`, 3 `obs_clip`, 4 `method` and `trained_with`, 5 `env_fingerprint` and
+# `env_files` (the environment the file carries, registry/carried.py). Run: 2 adds the status
 # `created` and `code_history`, 3 `config.eval_episodes`, 4 `branched_from`, `env_spec`, `env_fingerprint`
 # and `config.ppo.flush_denormal`.
-TEACHER_SCHEMA_VERSION = 4
+TEACHER_SCHEMA_VERSION = 5
 RUN_SCHEMA_VERSION = 4
 
 
@@ -111,6 +112,11 @@ class TeacherCard(BaseModel):
     version: int = Field(ge=1)
     env: str
     env_spec: dict[str, Any]
+    # the spec's and its model files' sha256 (envs/fingerprint.py) when it was trained; None on older cards
+    env_fingerprint: str | None = None
+    # the spec and model files the file carries as uint8 tensors `env/PATH` (registry/carried.py), the spec
+    # first; empty: it carries none (older cards, run students, a model too large or outside its folder)
+    env_files: list[str] = Field(default_factory=list)
     obs_dim: int = Field(gt=0)
     act_dim: int = Field(gt=0)
     pi_hidden: list[int]

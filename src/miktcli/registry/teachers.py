@@ -16,10 +16,12 @@ from pathlib import Path
 
 import torch
 
+from miktcli import limits
 from miktcli.engine.policies import GaussianActorCritic
 from miktcli.errors import MiktError
 from miktcli.registry import location
 from miktcli.registry.cards import TEACHER_SCHEMA_VERSION, TeacherCard, TeacherVersion
+from miktcli.registry.carried import EnvFiles, split_carried
 from miktcli.registry.files import read_card, read_tensors, save_with_card, tensors_sha256, verify_sha
 from miktcli.registry.packaged import packaged_teachers
 from miktcli.registry.runs import Run, check_registry
@@ -176,48 +178,65 @@ class Teacher:
     path: Path
     policy: GaussianActorCritic
     source: str = "local"  # or "packaged": where the lookup found it
+    carried: EnvFiles | None = None  # the environment the file carries (registry/carried.py)
 
 
 def load_policy_file(path: Path) -> tuple[TeacherCard, GaussianActorCritic]:
     """Read and fully verify a policy file (a teacher or a run's student): card, shapes and sha256."""
+    card, policy, _ = load_policy_file_with_env(path)
+    return card, policy
+
+
+def load_policy_file_with_env(path: Path) -> tuple[TeacherCard, GaussianActorCritic, EnvFiles | None]:
+    """As load_policy_file, and the environment files the file carries (checked against the card's list
+    here, against its fingerprint when they are used)."""
     card = read_teacher_card(path)
-    tensors = read_tensors(path)
+    tensors, carried = split_carried(read_tensors(path))
+    env = EnvFiles.from_tensors(path, card.env, card.env_files, carried) if carried or card.env_files else None
     check_card_against_tensors(path, card, tensors)
     verify_sha(path, tensors, card.tensors_sha256)
     policy = GaussianActorCritic(card.obs_dim, card.act_dim, card.pi_hidden, card.vf_hidden, card.activation)
     policy.load_state_dict(tensors)
     policy.obs_normalizer.frozen = True
     policy.obs_normalizer.clip = math.inf if card.obs_clip is None else card.obs_clip
-    return card, policy
+    return card, policy, env
 
 
 def load_teacher(registry: Path, ref: str) -> Teacher:
     """Load a verified teacher, frozen: normaliser statistics fixed, no gradients for its parameters."""
     found = find(registry, ref)
     path = found.path
-    card, policy = load_policy_file(path)
+    card, policy, env = load_policy_file_with_env(path)
     stored_as = TeacherVersion(path.parent.name, int(path.stem[1:]))
     if (card.name, card.version) != stored_as:
         raise MiktError(f"{path}: the card names {card.ref} but the file is stored as {stored_as} "
                         "(moved or tampered)")
     policy.requires_grad_(False)
     policy.eval()
-    return Teacher(card, path, policy, found.source)
+    return Teacher(card, path, policy, found.source, env)
 
 
-def publish_teacher(registry: Path, card: TeacherCard, policy: GaussianActorCritic) -> TeacherCard:
+def publish_teacher(registry: Path, card: TeacherCard, policy: GaussianActorCritic,
+                    env: EnvFiles | None = None) -> TeacherCard:
     """Write the next version of `card.name` into the local registry, numbered above the versions of both
     layers (so `hopper` trained beside the packaged hopper@v2 becomes hopper@v3, and `latest` means the newest
-    either way). The file appears whole or not at all, and is never replaced."""
+    either way). The file appears whole or not at all, and is never replaced. With `env`, the file carries
+    those environment files (`card.env_fingerprint` describes them) unless it would then pass the size a
+    teacher file may take; the card's `env_files` says what it carries."""
     check_name(card.name)
     tensors = {k: v.detach().clone().contiguous() for k, v in policy.state_dict().items()}
+    policy_bytes = sum(t.numel() * t.element_size() for t in tensors.values())
+    if env is not None and policy_bytes + env.size + limits.MiB > limits.MAX_TENSOR_FILE_BYTES:
+        env = None
+    carried = env.tensors() if env is not None else {}
     for _ in range(100):  # another process may take the same number first: try the next one
         number = (versions(registry, card.name) or [0])[-1] + 1
         final = card.model_copy(update={"version": number, "tensors_sha256": tensors_sha256(tensors),
-                                        "schema_version": TEACHER_SCHEMA_VERSION})
+                                        "schema_version": TEACHER_SCHEMA_VERSION,
+                                        "env_files": list(env.files) if env is not None else []})
         path = teachers_dir(registry) / card.name / f"v{number}.safetensors"
         try:
-            save_with_card(path, tensors, final, exclusive=True)
+            save_with_card(path, {**tensors, **carried}, final, exclusive=True)
             return final
         except FileExistsError:
             continue

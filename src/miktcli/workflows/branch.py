@@ -8,12 +8,12 @@ from pathlib import Path
 from typing import Any
 
 from miktcli.engine.ppo import state_misfit
-from miktcli.envs import load_spec
 from miktcli.errors import MiktError
 from miktcli.methods import get_method
 from miktcli.registry.cards import BranchPoint, code_version, package_versions
 from miktcli.registry.runs import Run, create_run, open_run
 from miktcli.registry.teachers import load_run_teachers
+from miktcli.workflows.session import carry_env, run_env
 
 
 def branch_run(registry: Path, source_id: str, at: str, options: dict[str, Any], command: str) -> Run:
@@ -32,7 +32,8 @@ def branch_run(registry: Path, source_id: str, at: str, options: dict[str, Any],
     method = get_method(source.card.method)
     parsed = method.parse_options({**(source.card.config.options or {}), **options})
     config = source.card.config.model_copy(update={"options": None if parsed is None else parsed.model_dump()})
-    spec = load_spec(source.card.env)
+    env = run_env(source, "cannot branch")
+    spec = env.spec
     teachers = [t.policy for t in load_run_teachers(source, registry)]
     agent = method.build(spec.obs_dim, spec.act_dim, teachers, (config.pi_hidden, config.vf_hidden), parsed)
     state = {k[len("agent."):]: v for k, v in tensors.items() if k.startswith("agent.")}
@@ -45,6 +46,8 @@ def branch_run(registry: Path, source_id: str, at: str, options: dict[str, Any],
                      seed=source.card.seed, total_steps=source.card.total_steps, config=config, command=command,
                      teachers=source.card.teachers, code_version=code_version(), packages=package_versions(),
                      env_spec=source.card.env_spec, env_fingerprint=source.card.env_fingerprint)
+    if source.card.env_fingerprint is not None:
+        carry_env(run, env)  # the source's copy where it has one: the branch trains on the same body
     # A hand-over recorded after the branch point belongs to the source's own continuation, not to this run.
     result = {k: v for k, v in source.card.result.items()
               if k == "handover" and isinstance(v, dict) and v.get("at_step", ckpt.steps) < ckpt.steps}

@@ -8,32 +8,35 @@ from typing import NamedTuple
 
 from miktcli.engine.episodes import evaluate_policy, evaluation_summary  # noqa: F401 - the workflows' names
 from miktcli.engine.policies import ActorCritic
-from miktcli.envs import load_spec
-from miktcli.envs.fingerprint import spec_record
 from miktcli.errors import MiktError
 from miktcli.methods import get_method
+from miktcli.registry.carried import ResolvedEnv, resolve_teacher_env
 from miktcli.registry.runs import RUN_TARGET_RE, open_run
 from miktcli.registry.teachers import load_policy_file, load_teacher
-from miktcli.workflows.session import agent_from_checkpoint, check_env_unchanged
+from miktcli.workflows.session import agent_from_checkpoint, run_env
 
 
 class LoadedPolicy(NamedTuple):
     policy: ActorCritic
-    env: str
-    label: str
+    env: str  # a SpecName: the environment as resolved (the spec folders, or the copy the run or teacher carries)
+    label: str  # says so when a carried copy stands in for the spec folders
     clip_actions: bool  # how actions reached the env in training: evaluate the same way
+
+
+def _label(label: str, env: ResolvedEnv) -> str:
+    return label if env.copy_of is None else f"{label} (environment: the copy {env.copy_of} carries)"
 
 
 def load_run_policy(registry: Path, run_id: str, with_teacher: bool) -> LoadedPolicy:
     """A run's policy: the saved teacher-free student, or (with_teacher) the agent with its teachers, from
     its checkpoint."""
     run = open_run(registry, run_id)
-    check_env_unchanged(run, load_spec(run.card.env), "cannot evaluate")
+    env = run_env(run, "cannot evaluate")
     method = get_method(run.card.method)
     if with_teacher:
         if method.with_teachers is None:
             raise MiktError(f"run '{run.id}' ({run.card.method}) has no teacher to evaluate with")
-        agent = method.with_teachers(agent_from_checkpoint(run, registry))
+        agent = method.with_teachers(agent_from_checkpoint(run, registry, env.spec))
         label = f"{run.id} student + teacher"
     elif run.student_path.exists():
         card, agent = load_policy_file(run.student_path)
@@ -42,11 +45,11 @@ def load_run_policy(registry: Path, run_id: str, with_teacher: bool) -> LoadedPo
                             f"on {run.card.env} (copied or tampered)")
         label = f"{run.id} student"
     else:  # an interrupted or running run: its last checkpoint, teacher-free
-        agent = method.student(agent_from_checkpoint(run, registry))
+        agent = method.student(agent_from_checkpoint(run, registry, env.spec))
         label = f"{run.id} student (checkpoint at {run.card.steps_done} steps)"
     agent.obs_normalizer.frozen = True
     agent.eval()
-    return LoadedPolicy(agent, run.card.env, label, run.card.config.ppo.clip_actions_for_env)
+    return LoadedPolicy(agent, env.name, _label(label, env), run.card.config.ppo.clip_actions_for_env)
 
 
 def load_policy(registry: Path, target: str, with_teacher: bool = False) -> LoadedPolicy:
@@ -56,16 +59,6 @@ def load_policy(registry: Path, target: str, with_teacher: bool = False) -> Load
     if with_teacher:
         raise MiktError("--with-teacher applies to runs (runN), not to teachers")
     teacher = load_teacher(registry, target)
-    check_teacher_env_unchanged(teacher.card)
-    return LoadedPolicy(teacher.policy, teacher.card.env, teacher.card.ref, teacher.card.clip_actions_for_env)
+    env = resolve_teacher_env(teacher.card, teacher.carried, "cannot evaluate")
+    return LoadedPolicy(teacher.policy, env.name, _label(teacher.card.ref, env), teacher.card.clip_actions_for_env)
 
-
-def check_teacher_env_unchanged(card) -> None:
-    """A teacher's card holds the spec it was trained on: refuse to evaluate it on an edited one. Only the
-    fields both know are compared (a field added to mikt's specs since keeps its default)."""
-    now = spec_record(load_spec(card.env))
-    changed = sorted(k for k in card.env_spec.keys() & now.keys() if card.env_spec[k] != now[k])
-    if changed:
-        raise MiktError(f"cannot evaluate {card.ref}: environment '{card.env}' changed since it was trained "
-                        f"({', '.join(f'{k}: {card.env_spec[k]!r} then, {now[k]!r} now' for k in changed[:3])})",
-                        hint="restore the spec, or add the edited body under a new name and train on it")

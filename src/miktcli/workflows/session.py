@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import math
+import shutil
 import tempfile
 from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass
@@ -17,12 +18,13 @@ from miktcli import limits
 from miktcli.engine.episodes import evaluation_summary
 from miktcli.engine.policies import TEACHER_FREE, ActorCritic
 from miktcli.engine.ppo import PPOTrainer, complete_state, state_misfit
-from miktcli.envs import load_spec, make_env
-from miktcli.envs.fingerprint import describe_change, spec_fingerprint, spec_record
+from miktcli.envs import make_env
+from miktcli.envs.fingerprint import spec_fingerprint, spec_record
 from miktcli.errors import MiktError
 from miktcli.limits import check_count
 from miktcli.methods import get_method
 from miktcli.registry.cards import CodeSegment, RunConfig, TeacherRef, code_version, now, package_versions
+from miktcli.registry.carried import NotCarried, ResolvedEnv, carry_into_run, resolve_new_env, resolve_run_env
 from miktcli.registry.runs import Run, RunLock, create_run
 from miktcli.registry.teachers import load_run_teachers
 from miktcli.workflows.slowdown import SlowdownWatch, update_ratio
@@ -51,8 +53,10 @@ def check_registry_writable(registry: Path, *folders: str) -> None:
 
 
 def new_run(registry: Path, *, kind: str, env: str, method: str, seed: int, total_steps: int,
-            config: RunConfig, command: str, teachers: list[TeacherRef] | None = None) -> Run:
-    """Validate everything a run needs, then create its folder. Nothing is created when a check fails."""
+            config: RunConfig, command: str, teachers: list[TeacherRef] | None = None,
+            resolved: ResolvedEnv | None = None) -> Run:
+    """Validate everything a run needs, then create its folder, carrying its environment (registry/carried.py;
+    `resolved`: where the caller found it, else the spec folders). Nothing is created when a check fails."""
     check_count("--steps", total_steps, limits.MAX_STEPS)
     check_count("--num-envs", config.ppo.num_envs, limits.MAX_NUM_ENVS)
     asked, total_steps = total_steps, whole_rollouts(total_steps, config.ppo.batch_size)
@@ -60,28 +64,37 @@ def new_run(registry: Path, *, kind: str, env: str, method: str, seed: int, tota
     if not 0 <= seed <= MAX_SEED:
         raise MiktError(f"--seed {seed} is out of range: 0 to {MAX_SEED}")
     get_method(method).parse_options(config.options)
-    spec = load_spec(env)  # fail on an unknown env before a run folder exists
+    resolved = resolved or resolve_new_env(env)  # fail on an unknown env before a run folder exists
+    spec = resolved.spec
     limits.check_model_size(spec.obs_dim, spec.act_dim, config.pi_hidden, config.vf_hidden)
     fingerprint = spec_fingerprint(spec)
     check_registry_writable(registry, "runs", *(["teachers"] if kind == "teacher" else []))
-    return create_run(
+    run = create_run(
         registry, kind=kind, env=env, method=method, seed=seed, total_steps=total_steps, config=config,
         command=command, teachers=teachers or [], code_version=code_version(), packages=package_versions(),
         env_spec=spec_record(spec), env_fingerprint=fingerprint,
     )
+    carry_env(run, resolved)
+    return run
 
 
-def check_env_unchanged(run: Run, spec, doing: str) -> None:
-    """Refuse to go on with a run whose environment was edited since it started (a run recorded before mikt
-    kept fingerprints is taken as it is)."""
-    recorded = run.card.env_fingerprint
-    if recorded is None:
-        return
-    now = spec_fingerprint(spec)
-    if now != recorded:
-        raise MiktError(f"{doing} {run.id}: " + describe_change(run.card.env, recorded, now, "it started"),
-                        hint=f"restore the spec (the run's card holds it: mikt inspect {run.id} --json), or "
-                             "add the edited body under a new name for new runs")
+def carry_env(run: Run, resolved: ResolvedEnv) -> None:
+    """Put a copy of the run's environment into its folder (runN/env/). A model that cannot travel
+    (carried.NotCarried) leaves the run as runs were before; any other failure removes the new run."""
+    try:
+        carry_into_run(run.path, resolved, run.card.env_fingerprint)
+    except NotCarried:
+        pass
+    except BaseException:
+        shutil.rmtree(run.path, ignore_errors=True)
+        raise
+
+
+def run_env(run: Run, doing: str) -> ResolvedEnv:
+    """The environment of a run, from the spec folders or the copy the run carries (registry/carried.py);
+    refused when it differs from the one the run started on (a run recorded before mikt kept fingerprints is
+    taken as it is)."""
+    return resolve_run_env(run.path, run.id, run.card.env, run.card.env_fingerprint, doing)
 
 
 @dataclass(frozen=True)
@@ -119,10 +132,10 @@ class Job:
         self.lock = RunLock(run).acquire()
         try:
             torch.manual_seed(run.card.seed)
-            self.spec = load_spec(run.card.env)
-            check_env_unchanged(run, self.spec, "cannot train")
+            self.env = run_env(run, "cannot train")
+            self.spec = self.env.spec
             self.method = get_method(run.card.method)
-            self.agent = build_agent(run, registry)
+            self.agent = build_agent(run, registry, self.spec)
             self.config = run.card.config.ppo
             self.trainer = PPOTrainer(self.agent, lambda: make_env(self.spec), self.config, run.card.total_steps,
                                       seed=run.card.seed)
@@ -176,6 +189,8 @@ class Job:
         run, trainer = self.run, self.trainer
         run.save_card(status="running", error=None,
                       code_history=continued_code_history(run.card.code_history, trainer.global_step))
+        if self.env.note:  # trained from the copy the run carries: say so, and where it lies
+            yield Phase("environment", self.env.detail)
         yield from self._phase_change()
 
     def record(self, metrics: dict[str, Any]) -> Iterator[dict[str, Any] | Phase]:
@@ -222,11 +237,11 @@ class Job:
         rng = torch.random.get_rng_state()  # evaluation seeds torch; training's own generators are untouched
         try:
             with torch.no_grad():
-                mixed = evaluation_summary(copy.deepcopy(agent), self.run.card.env, self.eval_episodes, seed, clip)
+                mixed = evaluation_summary(copy.deepcopy(agent), self.env.name, self.eval_episodes, seed, clip)
                 # the hand-over itself (what the next iteration's schedule step would do), then the student
                 agent.set_progress(upcoming / trainer.num_iterations)
-                alone = evaluation_summary(self.method.student(agent), self.run.card.env, self.eval_episodes,
-                                           seed, clip)
+                alone = evaluation_summary(self.method.student(agent), self.env.name, self.eval_episodes, seed,
+                                           clip)
         finally:
             torch.random.set_rng_state(rng)
         kept = alone["return_mean"] / mixed["return_mean"] if mixed["return_mean"] > 0 else None
@@ -251,9 +266,9 @@ def continued_code_history(history: list[CodeSegment], step: int) -> list[CodeSe
     return [*history, current]
 
 
-def build_agent(run: Run, registry: Path) -> ActorCritic:
-    """The module a run trains, built by its method from the run card (and the exact teachers it names)."""
-    spec = load_spec(run.card.env)
+def build_agent(run: Run, registry: Path, spec) -> ActorCritic:
+    """The module a run trains on `spec` (its environment, from `run_env`), built by its method from the run
+    card (and the exact teachers it names)."""
     method = get_method(run.card.method)
     teachers = [t.policy for t in load_run_teachers(run, registry)]
     cfg = run.card.config
@@ -261,9 +276,9 @@ def build_agent(run: Run, registry: Path) -> ActorCritic:
                         method.parse_options(cfg.options))
 
 
-def agent_from_checkpoint(run: Run, registry: Path) -> ActorCritic:
-    """A run's agent with the weights of its last checkpoint (for evaluation, not for training)."""
-    agent = build_agent(run, registry)
+def agent_from_checkpoint(run: Run, registry: Path, spec) -> ActorCritic:
+    """A run's agent on `spec` with the weights of its last checkpoint (for evaluation, not for training)."""
+    agent = build_agent(run, registry, spec)
     _, tensors = run.load_checkpoint()
     state = {k[len("agent."):]: v for k, v in tensors.items() if k.startswith("agent.")}
     problem = state_misfit(agent, state)

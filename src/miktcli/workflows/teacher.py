@@ -11,9 +11,10 @@ from typing import Any
 from miktcli.engine.compile_choice import decide_compile
 from miktcli.engine.nets import OBS_CLIP
 from miktcli.engine.ppo import PPOConfig
-from miktcli.envs import load_spec
+from miktcli.envs.fingerprint import spec_fingerprint
 from miktcli.errors import MiktError
 from miktcli.registry.cards import RunConfig, TeacherCard, code_version, now, package_versions
+from miktcli.registry.carried import EnvFiles, NotCarried, ResolvedEnv, resolve_new_env, teacher_files
 from miktcli.registry.importers import read_foreign_policy
 from miktcli.registry.runs import Run
 from miktcli.registry.teachers import (
@@ -44,26 +45,44 @@ def start_teacher(registry: Path, *, env: str, steps: int, seed: int, command: s
 
 def train_teacher(run: Run, registry: Path) -> Generator[Event, None, TeacherCard]:
     """Train a teacher run to its end (resuming from its checkpoint) and publish it as the next version of
-    its name. Yields each iteration's metrics; returns the published card."""
+    its name, carrying its environment. Yields each iteration's metrics; returns the published card."""
     with Job(run, registry) as job:
         yield from job.iterations()
-        yield Phase("publish", run.card.config.teacher_name or run.card.env)
-        return publish_teacher_from_job(job)
+        env, why = env_to_carry(run.card.env, run.card.env_fingerprint, run.path, job.env)
+        name = run.card.config.teacher_name or run.card.env
+        yield Phase("publish", name if env is not None else f"{name} (without its environment: {why})")
+        return publish_teacher_from_job(job, env)
 
 
-def publish_teacher_from_job(job: Job) -> TeacherCard:
-    """Put a finished teacher run's policy into the registry as the next version of its name."""
+def env_to_carry(name: str, fingerprint: str | None, run_path: Path | None = None,
+                 env: ResolvedEnv | None = None) -> tuple[EnvFiles | None, str | None]:
+    """The environment files a teacher carries (carried.teacher_files), or None and why not: a teacher is
+    published either way, and then needs its spec in a spec folder."""
+    if fingerprint is None:
+        return None, "its run recorded no fingerprint of it"
+    try:
+        return teacher_files(name, fingerprint, run_path, env), None
+    except (NotCarried, MiktError) as why:  # a file unreadable now: the teacher is still worth publishing
+        return None, str(why)
+    except OSError as err:
+        return None, f"its copy could not be written to the temporary folder: {err.strerror or err}"
+
+
+def publish_teacher_from_job(job: Job, env: EnvFiles | None = None) -> TeacherCard:
+    """Put a finished teacher run's policy into the registry as the next version of its name (carrying
+    `env`, the files of its environment)."""
     card, spec = job.run.card, job.spec
     teacher = TeacherCard(
         name=card.config.teacher_name or card.env, version=1, env=card.env, env_spec=spec.model_dump(),
-        obs_dim=spec.obs_dim, act_dim=spec.act_dim, pi_hidden=card.config.pi_hidden,
-        vf_hidden=card.config.vf_hidden, clip_actions_for_env=job.config.clip_actions_for_env,
+        env_fingerprint=card.env_fingerprint, obs_dim=spec.obs_dim, act_dim=spec.act_dim,
+        pi_hidden=card.config.pi_hidden, vf_hidden=card.config.vf_hidden,
+        clip_actions_for_env=job.config.clip_actions_for_env,
         steps=job.trainer.global_step, seed=card.seed, final_return=job.final_return,
         best_return=job.best_return if math.isfinite(job.best_return) else None,
         hyperparameters=job.config.model_dump(), packages=card.packages, code_version=card.code_version,
         code_history=card.code_history, source_run=card.run_id, created=now(), tensors_sha256="",
     )
-    published = publish_teacher(job.registry, teacher, job.agent)
+    published = publish_teacher(job.registry, teacher, job.agent, env)
     slowdowns = {"slowdowns": job.run.card.result["slowdowns"]} if "slowdowns" in job.run.card.result else {}
     job.run.save_card(status="completed", result={
         "teacher": published.ref, "final_return": published.final_return, "best_return": published.best_return,
@@ -75,7 +94,8 @@ def publish_teacher_from_job(job: Job) -> TeacherCard:
 def add_student_as_teacher(registry: Path, run_id: str, name: str) -> TeacherCard:
     """Publish a completed transfer run's teacher-free student as the next version of teacher `name`, so that
     it can teach in turn (chains such as four → six → eight). Its card keeps the run's provenance: the run,
-    the teachers it learned from, the code that trained it, the spec of its env."""
+    the teachers it learned from, the code that trained it, the spec of its env; the file carries the env
+    (the run's copy, or the spec folders' if the run has none)."""
     from miktcli.registry.runs import open_run
     from miktcli.registry.teachers import load_policy_file
 
@@ -90,17 +110,20 @@ def add_student_as_teacher(registry: Path, run_id: str, name: str) -> TeacherCar
     if (student.source_run, student.env) != (run.id, run.card.env):
         raise MiktError(f"{run.student_path}: the file is {student.ref} on {student.env}, not {run.id}'s student "
                         f"on {run.card.env} (copied or tampered)")
-    card = student.model_copy(update={"name": check_name(name), "created": now(),
+    check_name(name)
+    env, _ = env_to_carry(run.card.env, run.card.env_fingerprint, run.path)
+    card = student.model_copy(update={"name": name, "created": now(), "env_fingerprint": run.card.env_fingerprint,
                                       "trained_with": [t.ref for t in run.card.teachers],
                                       "method": run.card.method})
-    return publish_teacher(registry, card, policy)
+    return publish_teacher(registry, card, policy, env)
 
 
 def import_teacher(registry: Path, path: Path, *, fmt: str, env: str, name: str | None = None,
                    obs_stats: Path | None = None, activation: str | None = None) -> TeacherCard:
     """Publish a policy trained elsewhere (Stable-Baselines3 zip, CleanRL model) as the next version of a
     teacher, after checking its dims and layers against the env spec; nothing is unpickled."""
-    spec = load_spec(env)
+    resolved = resolve_new_env(env)
+    spec = resolved.spec
     teacher_name = check_name(env if name is None else name)
     if name is None and versions(registry, teacher_name):
         # By default an import is named after its env, as the shipped teachers are: it would silently become
@@ -118,8 +141,11 @@ def import_teacher(registry: Path, path: Path, *, fmt: str, env: str, name: str 
         raise MiktError(f"{path}: the policy reads obs {obs_dim} and acts {act_dim}; environment '{env}' has "
                         f"obs {spec.obs_dim} / act {spec.act_dim}")
     check_registry_writable(registry, "teachers")
+    fingerprint = spec_fingerprint(spec)
+    carried, _ = env_to_carry(env, fingerprint, env=resolved)
     card = TeacherCard(
-        name=teacher_name, version=1, env=env, env_spec=spec.model_dump(), obs_dim=obs_dim, act_dim=act_dim,
+        name=teacher_name, version=1, env=env, env_spec=spec.model_dump(), env_fingerprint=fingerprint,
+        obs_dim=obs_dim, act_dim=act_dim,
         pi_hidden=policy.pi.hidden_sizes, vf_hidden=policy.vf.hidden_sizes, activation=imported.activation,
         obs_clip=None if obs_stats is None else OBS_CLIP,  # without statistics it saw raw, unclipped observations
         clip_actions_for_env=True,  # SB3 and CleanRL's ppo_continuous_action clip actions for the env
@@ -128,7 +154,7 @@ def import_teacher(registry: Path, path: Path, *, fmt: str, env: str, name: str 
         created=now(), tensors_sha256="",
     )
     policy.obs_normalizer.frozen = True
-    return publish_teacher(registry, card, policy)
+    return publish_teacher(registry, card, policy, carried)
 
 
 def shadowed_teacher(registry: Path, card: TeacherCard) -> TeacherCard | None:

@@ -14,12 +14,13 @@ from miktcli.engine.compile_choice import decide_compile
 from miktcli.engine.episodes import evaluation_summary
 from miktcli.engine.policies import GaussianActorCritic
 from miktcli.engine.ppo import PPOConfig
-from miktcli.envs import load_spec
+from miktcli.envs.spec import AnySpec
 from miktcli.errors import MiktError, TeacherMismatchError
 from miktcli.limits import check_count
 from miktcli.methods import get_method
 from miktcli.methods.mixing import is_mixing_key
 from miktcli.registry.cards import RunConfig, TeacherCard, TeacherRef, now
+from miktcli.registry.carried import folder_spec_file, resolve_new_env
 from miktcli.registry.files import save_with_card, tensors_sha256
 from miktcli.registry.runs import Run
 from miktcli.registry.teachers import Teacher, load_teacher
@@ -71,8 +72,10 @@ def start_transfer(
     m = get_method(method)
     m.check_teacher_count(len(teacher_refs))
     parsed = m.parse_options(options)
-    load_spec(to)
+    # the target from the spec folders, checked first; else from the copy one of the teachers carries
+    target = resolve_new_env(to) if folder_spec_file(to) is not None or not teacher_refs else None
     teachers = [load_teacher(registry, ref) for ref in teacher_refs]
+    target = target or resolve_new_env(to, [(t.card, t.carried) for t in teachers])
     by_content: dict[str, str] = {}  # tensors' sha256 (verified on load) → the ref that brought them
     for t in teachers:  # the same representation offered twice only splits the student's attention
         sha, ref = t.card.tensors_sha256, t.card.ref
@@ -93,7 +96,7 @@ def start_transfer(
     config = RunConfig(ppo=ppo, pi_hidden=sizes[0], vf_hidden=sizes[1],
                        options=None if parsed is None else parsed.model_dump(), eval_episodes=eval_episodes)
     return new_run(registry, kind="transfer", env=to, method=method, seed=seed, total_steps=steps, config=config,
-                   command=command, teachers=[teacher_ref(t) for t in teachers])
+                   command=command, teachers=[teacher_ref(t) for t in teachers], resolved=target)
 
 
 def train_transfer(run: Run, registry: Path, eval_episodes: int) -> Generator[Event, None, dict[str, Any]]:
@@ -121,13 +124,14 @@ def train_transfer_chunk(run: Run, registry: Path, eval_episodes: int,
         return finish_transfer(job, eval_episodes)
 
 
-def save_student(run: Run, student: GaussianActorCritic, final_return: float | None,
+def save_student(run: Run, spec: AnySpec, student: GaussianActorCritic, final_return: float | None,
                  best_return: float | None, clip_actions: bool) -> TeacherCard:
-    """The teacher-free student as a standalone policy file (same format as a teacher)."""
-    spec = load_spec(run.card.env)
+    """The teacher-free student on `spec` as a standalone policy file (same format as a teacher; the run's
+    folder carries its environment, `teacher add` puts it into the teacher it publishes)."""
     tensors = {k: v.detach().clone().contiguous() for k, v in student.state_dict().items()}
     card = TeacherCard(
-        name=f"{run.id}-student", version=1, env=run.card.env, env_spec=spec.model_dump(), obs_dim=spec.obs_dim,
+        name=f"{run.id}-student", version=1, env=run.card.env, env_spec=spec.model_dump(),
+        env_fingerprint=run.card.env_fingerprint, obs_dim=spec.obs_dim,
         act_dim=spec.act_dim, pi_hidden=student.pi.hidden_sizes, vf_hidden=student.vf.hidden_sizes,
         clip_actions_for_env=clip_actions, steps=run.card.steps_done, seed=run.card.seed,
         final_return=final_return, best_return=best_return,
@@ -159,9 +163,9 @@ def finish_transfer(job: Job, episodes: int) -> dict[str, Any]:
             result["final_mixing"] = mixing_weights(agent)  # as trained (1.0 where the schedule dropped them)
             with_teachers = method.with_teachers(agent)
             result["final_mixing_learned"] = mixing_weights(with_teachers)
-            result["eval_with_teacher"] = evaluation_summary(with_teachers, run.card.env, episodes, seed, clip)
+            result["eval_with_teacher"] = evaluation_summary(with_teachers, job.env.name, episodes, seed, clip)
         student = method.student(agent)
-        result["eval_without_teacher"] = evaluation_summary(student, run.card.env, episodes, seed, clip)
-    save_student(run, student, job.final_return, result["best_train_return"], clip)
+        result["eval_without_teacher"] = evaluation_summary(student, job.env.name, episodes, seed, clip)
+    save_student(run, job.spec, student, job.final_return, result["best_train_return"], clip)
     run.save_card(status="completed", result=result)
     return result
