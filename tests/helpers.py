@@ -46,7 +46,9 @@ def rewrite_teacher(path, update=None, tensors=None):
     with safe_open(str(path), "pt") as f:
         card = TeacherCard.model_validate_json(f.metadata()[CARD_KEY])
     tensors = st_load(path.read_bytes()) if tensors is None else tensors
-    card = card.model_copy(update={**(update or {}), "tensors_sha256": tensors_sha256(split_carried(tensors)[0])})
+    policy, carried = split_carried(tensors)
+    card = card.model_copy(update={**(update or {}), "tensors_sha256": tensors_sha256(policy),
+                                   "env_files_sha256": tensors_sha256(carried) if carried else None})
     path.write_bytes(st_save(tensors, metadata={CARD_KEY: card.model_dump_json()}))
 
 

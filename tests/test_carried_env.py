@@ -12,7 +12,7 @@ from safetensors import safe_open
 from safetensors.torch import load as st_load
 from safetensors.torch import save as st_save
 
-from helpers import mikt, robot_with_mesh_and_include
+from helpers import mikt, rewrite_teacher, robot_with_mesh_and_include
 from miktcli import limits
 from miktcli.registry import carried
 from miktcli.registry.cards import TeacherCard
@@ -147,7 +147,12 @@ def test_a_teacher_carries_its_meshes_and_includes_and_a_tampered_one_is_refused
 
     def flip_mesh(card, tensors):
         tensors["env/bot/meshes/foot.obj"][0] ^= 1
-    _rewrite_carried(teacher, flip_mesh)
+    _rewrite_carried(teacher, flip_mesh)  # a flipped byte: the file's sha256 says so whenever it is read
+    assert "tensors do not match the card's sha256 (tampered or corrupted)" in mikt("eval", "b", code=1).output
+    teacher.write_bytes(before)
+    tensors = st_load(teacher.read_bytes())
+    tensors["env/bot/meshes/foot.obj"][0] ^= 1
+    rewrite_teacher(teacher, tensors=tensors)  # and with the card's sha256 rewritten to match: the fingerprint
     out = mikt("eval", "b", code=1).output
     assert "cannot evaluate b@v1: the copy of environment 'bot' that b@v1 carries (in its file) does not match" in out
 

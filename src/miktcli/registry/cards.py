@@ -117,6 +117,9 @@ class TeacherCard(BaseModel):
     # the spec and model files the file carries as uint8 tensors `env/PATH` (registry/carried.py), the spec
     # first; empty: it carries none (older cards, run students, a model too large or outside its folder)
     env_files: list[str] = Field(default_factory=list)
+    # sha256 of those carried tensors, checked whenever the file is read (used or not, a tampered byte in the
+    # file is refused, as it is in the policy's tensors); None when it carries none
+    env_files_sha256: str | None = None
     obs_dim: int = Field(gt=0)
     act_dim: int = Field(gt=0)
     pi_hidden: list[int]

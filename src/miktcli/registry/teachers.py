@@ -195,6 +195,8 @@ def load_policy_file_with_env(path: Path) -> tuple[TeacherCard, GaussianActorCri
     env = EnvFiles.from_tensors(path, card.env, card.env_files, carried) if carried or card.env_files else None
     check_card_against_tensors(path, card, tensors)
     verify_sha(path, tensors, card.tensors_sha256)
+    if carried or card.env_files_sha256 is not None:
+        verify_sha(path, carried, card.env_files_sha256 or "none")
     policy = GaussianActorCritic(card.obs_dim, card.act_dim, card.pi_hidden, card.vf_hidden, card.activation)
     policy.load_state_dict(tensors)
     policy.obs_normalizer.frozen = True
@@ -233,7 +235,8 @@ def publish_teacher(registry: Path, card: TeacherCard, policy: GaussianActorCrit
         number = (versions(registry, card.name) or [0])[-1] + 1
         final = card.model_copy(update={"version": number, "tensors_sha256": tensors_sha256(tensors),
                                         "schema_version": TEACHER_SCHEMA_VERSION,
-                                        "env_files": list(env.files) if env is not None else []})
+                                        "env_files": list(env.files) if env is not None else [],
+                                        "env_files_sha256": tensors_sha256(carried) if carried else None})
         path = teachers_dir(registry) / card.name / f"v{number}.safetensors"
         try:
             save_with_card(path, {**tensors, **carried}, final, exclusive=True)
