@@ -14,7 +14,7 @@ rule below, which was written down before any branch had finished (docs/results/
 The rule: a hand-over qualifies when its teacher-free student keeps >= 95 % of the mixed policy's return at the
 drop on every pair. Among those (all of them, if none qualifies), the pick has the highest mean over pairs of
 the per-update return over the 200k steps after the drop; within 2 % of the best, the simpler one wins
-(drop, fold, fold-linear, fade, distil in that order). For the branches that start at the hand-over window
+(drop, fold, fold-linear, fold-fit, fade, distil in that order). For the branches that start at the hand-over window
 (distil, fade: added after the first results), the mixed policy's return is the base run's at its drop: theirs
 is already distilled or faded by then.
 """
@@ -31,7 +31,7 @@ from pathlib import Path
 from miktcli.registry.runs import list_runs, open_run
 from miktcli.studies.handover import HandoverFigures, handover_figures
 
-SIMPLEST_FIRST = ["drop", "fold", "fold-linear", "fade", "distil"]
+SIMPLEST_FIRST = ["drop", "fold", "fold-linear", "fold-fit", "fade", "distil"]
 KEEP = 0.95
 TIE = 0.02
 

@@ -1,4 +1,5 @@
-"""The hand-over at the three-phase schedule's drop: drop (the authors'), fold, fold-linear and distil."""
+"""The hand-over at the three-phase schedule's drop: drop (the authors'), fold, fold-linear, fold-fit, distil
+and fade."""
 
 import json
 
@@ -9,6 +10,8 @@ from torch.nn import functional as F
 
 from helpers import mikt
 from miktcli.engine.policies import GaussianActorCritic
+from miktcli.engine.ppo import complete_state, state_misfit
+from miktcli.errors import MiktError
 from miktcli.methods.mikt import MiktActorCritic, MiktConfig
 
 
@@ -79,6 +82,74 @@ def test_each_fold_is_closer_to_the_mixed_network_than_dropping_the_teachers():
         assert linear[branch] < fold[branch] < drop[branch]
 
 
+def held_out_gap(handover, fit_obs, new_obs, **options):
+    """Mean squared gap between the mixed network and the student after the hand-over, on states it did not
+    see (the same distribution)."""
+    agent = trained_like_agent(handover, **options)
+    with torch.no_grad():
+        agent.pi.head.weight.mul_(100.0)  # a trained policy's means, not the initial ~0.01
+        mixed = agent.action_mean(new_obs), agent.value(new_obs)
+    hand_over(agent, fit_obs)
+    with torch.no_grad():
+        alone = agent.action_mean(new_obs), agent.value(new_obs)
+    return [float((a - b).square().mean()) for a, b in zip(mixed, alone, strict=True)], agent
+
+
+def test_fold_fit_is_closer_to_the_mixed_network_than_fold_linear_on_states_it_did_not_see():
+    torch.manual_seed(3)
+    fit_obs, new_obs = torch.randn(2048, 13), torch.randn(1024, 13)
+    linear, _ = held_out_gap("fold-linear", fit_obs, new_obs)
+    fitted, agent = held_out_gap("fold-fit", fit_obs, new_obs)
+    for branch in (0, 1):  # policy mean, value (0.41 and 0.30 of fold-linear's gap when written)
+        assert fitted[branch] < 0.6 * linear[branch]
+    record = agent.handover_details()
+    assert record["states"] == 2048 and record["steps"] == 400
+    for branch in ("pi", "vf"):
+        assert record[f"{branch}_heldout_error_fit"] < record[f"{branch}_heldout_error_fold_linear"]
+
+
+def test_fold_fit_keeps_the_last_states_in_a_ring_and_refuses_to_fit_on_none():
+    agent = trained_like_agent("fold-fit", fit_states=100)
+    agent.set_progress(0.85)
+    first, second = torch.randn(70, 13), torch.randn(70, 13)
+    with torch.no_grad():
+        agent.observe_rollout(first, 0.87)
+        agent.observe_rollout(second, 0.9)
+    assert int(agent.fit_count) == 140
+    torch.testing.assert_close(agent.fit_obs[:40], second[30:], rtol=0, atol=0)  # wrapped round
+    torch.testing.assert_close(agent.fit_obs[40:70], first[40:], rtol=0, atol=0)
+    torch.testing.assert_close(agent.fit_obs[70:], second[:30], rtol=0, atol=0)
+    empty = trained_like_agent("fold-fit")
+    empty.set_progress(0.85)
+    with pytest.raises(MiktError, match="no observations to fit on"):
+        empty.set_progress(0.9)
+
+
+def test_fold_fit_resumed_before_the_drop_fits_the_same_and_loads_across_hand_overs():
+    obs = torch.randn(512, 13)
+    live = trained_like_agent("fold-fit", fit_steps=30)
+    live.set_progress(0.85)
+    with torch.no_grad():
+        live.observe_rollout(obs, 0.9)
+    checkpoint = {k: v.clone() for k, v in live.state_dict().items()}
+    live.set_progress(0.9)
+    resumed = trained_like_agent("fold-fit", fit_steps=30)
+    resumed.load_state_dict(checkpoint)
+    resumed.restore_progress(0.85)
+    resumed.set_progress(0.9)
+    for k, v in live.state_dict().items():
+        assert torch.equal(resumed.state_dict()[k], v), k
+    # a fold-linear run's checkpoint branches into fold-fit (no states kept yet) and back
+    linear = trained_like_agent("fold-linear")
+    assert state_misfit(linear, checkpoint) is None
+    linear.load_state_dict(complete_state(linear, checkpoint))
+    fresh = trained_like_agent("fold-fit")
+    linear_state = linear.state_dict()
+    assert state_misfit(fresh, linear_state) is None
+    fresh.load_state_dict(complete_state(fresh, linear_state))
+    assert int(fresh.fit_count) == 0
+
+
 def test_drop_leaves_the_weights_as_they_are():
     agent, obs = trained_like_agent("drop"), torch.randn(64, 13)
     before = {k: v.clone() for k, v in agent.pi.state_dict().items()}
@@ -143,7 +214,7 @@ def test_the_options_name_what_they_need():
 SHORT_SCHEDULE = ("--steps", 10240, "--ramp-start", 0.2, "--drop-teacher-at", 0.5, "--eval-episodes", 2)
 
 
-@pytest.mark.parametrize("handover", ["drop", "fold"])
+@pytest.mark.parametrize("handover", ["drop", "fold", "fold-fit"])
 def test_a_run_records_both_sides_of_the_hand_over_and_keeps_the_checkpoint_before_it(registry, handover):
     mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
     result = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE,
@@ -151,6 +222,11 @@ def test_a_run_records_both_sides_of_the_hand_over_and_keeps_the_checkpoint_befo
     record = result["handover"]
     assert record["at_step"] == 6144
     assert record["with_teachers"]["episodes"] == record["without_teachers"]["episodes"] == 2
+    if handover == "fold-fit":  # fitted on the rollout before the drop, and no worse than fold-linear on held-out
+        assert record["fit"]["states"] == 2048
+        assert record["fit"]["pi_heldout_error_fit"] <= record["fit"]["pi_heldout_error_fold_linear"]
+    else:
+        assert "fit" not in record
     run = registry / "runs" / result["run"]
     assert json.loads((run / "run.json").read_text())["result"]["handover"] == record
     kept = sorted(p.name for p in run.glob("checkpoint-*.safetensors"))

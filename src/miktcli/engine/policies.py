@@ -76,6 +76,15 @@ class ActorCritic(nn.Module):
         load with the module's initial values."""
         return set()
 
+    def ignores_state(self, key: str) -> bool:
+        """Whether a checkpoint's tensor this module lacks may be left out on loading (e.g. data kept for
+        an option the checkpoint's run had and this one has not: a branch that changes it)."""
+        return False
+
+    def handover_details(self) -> dict[str, float]:
+        """What the module measured when it handed over at its schedule's drop (recorded in the card)."""
+        return {}
+
     def observe_rollout(self, obs: torch.Tensor, next_fraction: float) -> None:
         """Called once per iteration, after the update and without gradients, with the rollout's normalised
         observations and the fraction of training the next iteration starts at: a module may keep running

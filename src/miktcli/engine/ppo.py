@@ -229,9 +229,11 @@ def compiled(loss: Callable[..., Any]) -> Callable[..., Any]:
 
 
 def complete_state(module: ActorCritic, state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    """`state` with the module's optional tensors it lacks (an older checkpoint) at their initial values."""
+    """`state` with the module's optional tensors it lacks (an older checkpoint) at their initial values, and
+    without those it has and the module ignores."""
     own = module.state_dict()
-    return {**{k: own[k] for k in module.optional_state() - state.keys()}, **state}
+    kept = {k: v for k, v in state.items() if k in own or not module.ignores_state(k)}
+    return {**{k: own[k] for k in module.optional_state() - state.keys()}, **kept}
 
 
 @contextmanager
@@ -254,10 +256,11 @@ def state_misfit(module: torch.nn.Module, state: dict[str, torch.Tensor]) -> str
     wanted = module.state_dict()
     optional = module.optional_state() if isinstance(module, ActorCritic) else set()
     missing = sorted(wanted.keys() - state.keys() - optional)
-    extra = sorted(state.keys() - wanted.keys())
+    extra = sorted(k for k in state.keys() - wanted.keys()
+                   if not (isinstance(module, ActorCritic) and module.ignores_state(k)))
     if missing or extra:
         return f"agent tensors do not fit this run's model: missing {missing[:3]}, unexpected {extra[:3]}"
-    bad = [k for k, v in state.items() if v.shape != wanted[k].shape]
+    bad = [k for k, v in state.items() if k in wanted and v.shape != wanted[k].shape]
     if bad:
         return (f"agent tensor '{bad[0]}' has shape {tuple(state[bad[0]].shape)}, the model needs "
                 f"{tuple(wanted[bad[0]].shape)}")

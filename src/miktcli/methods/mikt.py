@@ -81,7 +81,7 @@ class MiktConfig(BaseModel):
         "c·mean_j max(0, log r(t) − log p^j), so the teacher is pushed out no faster than the ramp. Why: Adam "
         "normalises each parameter's step, so once L_coupling's gradient outweighs PPO's on a mixing logit, the "
         "logit moves at Adam's rate whatever c·r(t) is, and p^j reaches ~1 long before the ramp ends")
-    handover: Literal["drop", "fold", "fold-linear", "distil", "fade"] = Field(
+    handover: Literal["drop", "fold", "fold-linear", "fold-fit", "distil", "fade"] = Field(
         "drop",
         description="how the three-phase schedule hands the policy and value over to the student at the drop. "
         "drop (the authors' code): the teachers, encoders and q are removed and every layer computes "
@@ -89,7 +89,11 @@ class MiktConfig(BaseModel):
         "each hidden layer's weights and bias are scaled by its student weight p^j and the teachers' mean "
         "contribution Σ_k p^j_k z^j_k (over recent rollouts) is added to its bias. fold-linear: as fold, but "
         "the teachers' contribution is replaced by its least-squares fit on the layer's input (a linear map "
-        "plus a bias) instead of its mean. distil: over the handover_window before the drop, the teacher-free "
+        "plus a bias) instead of its mean. fold-fit: fold-linear, then the teacher-free policy and value "
+        "(every layer) are regressed onto the mixed network's outputs on the observations of the last "
+        "rollouts before the drop (fit_states of them, kept in the checkpoint): fit_steps of full-batch Adam, "
+        "every 10th state held out, the best held-out weights kept, so it never ends worse than fold-linear "
+        "on them; no extra environment steps. distil: over the handover_window before the drop, the teacher-free "
         "path is trained to match the mixed policy (KL of the mixed policy to it) and value, then dropped. "
         "fade: over the handover_window the teachers' weights are scaled down to 0 and the student's up to 1 "
         "(p_s + u(1 − p_s), (1 − u) p_k, u: 0 → 1 across the window) while PPO trains on, so the network at "
@@ -100,6 +104,10 @@ class MiktConfig(BaseModel):
         "recent rollouts, half-life one rollout)")
     distil_coef: float = Field(1.0, ge=0, description="distil: weight of KL(mixed ‖ teacher-free) + "
                                "0.5·(V_teacher-free − V_mixed)² in the loss during the handover window")
+    fit_states: int = Field(8192, ge=64, le=262_144, description="fold-fit: how many of the last rollouts' "
+                            "observations the fit uses (a ring, in every checkpoint of a fold-fit run)")
+    fit_steps: int = Field(400, ge=1, le=100_000, description="fold-fit: full-batch Adam steps of the fit")
+    fit_lr: float = Field(1e-3, gt=0, le=1, description="fold-fit: the fit's Adam learning rate")
 
     @model_validator(mode="after")
     def _ramp_has_length(self) -> MiktConfig:
@@ -190,6 +198,12 @@ class MiktActorCritic(ActorCritic):
         self.keeps_fold_statistics = config.coupling_schedule == "three-phase"
         if self.keeps_fold_statistics:
             self._register_fold_statistics()
+        if config.handover == "fold-fit":
+            # the last rollouts' normalised observations, a ring; in the checkpoint, so that a resume or a
+            # branch at before-teacher-free fits on the same states
+            self.register_buffer("fit_obs", torch.zeros(config.fit_states, obs_dim))
+            self.register_buffer("fit_count", torch.zeros((), dtype=torch.int64))
+        self.handover_fit: dict[str, float] = {}  # what the last fold-fit measured (the card records it)
         # The ramp's value as a tensor the loss reads, so a compiled loss (PPOConfig.compile_loss) takes it
         # as an input instead of compiling again for every new value; not saved (set_progress sets it).
         self.register_buffer("coupling_weight", torch.tensor(1.0), persistent=False)
@@ -201,7 +215,11 @@ class MiktActorCritic(ActorCritic):
         """Move the schedule on; crossing the drop applies the hand-over (a fold changes the weights)."""
         handing_over = self._fraction is not None and self.teacher_active
         self._place(fraction)
-        if handing_over and not self.teacher_active and self.config.handover in ("fold", "fold-linear"):
+        if not (handing_over and not self.teacher_active):
+            return
+        if self.config.handover == "fold-fit":
+            self.fit_teachers_into_student()
+        elif self.config.handover in ("fold", "fold-linear"):
             self.fold_teachers_into_student()
 
     def restore_progress(self, fraction: float) -> None:
@@ -245,8 +263,13 @@ class MiktActorCritic(ActorCritic):
                 self.register_buffer(f"fold_{branch}{j}_uc", torch.zeros(n_in + 1, width))
 
     def optional_state(self) -> set[str]:
-        """Checkpoints written before mikt kept the fold statistics lack them: they load as none kept."""
-        return {k for k in self.state_dict() if k.startswith("fold_")}
+        """Checkpoints written before mikt kept the fold statistics lack them: they load as none kept. A
+        fold-fit run's kept states are optional too, so a run of another hand-over branches into fold-fit."""
+        return {k for k in self.state_dict() if k.startswith(("fold_", "fit_"))}
+
+    def ignores_state(self, key: str) -> bool:
+        """A fold-fit checkpoint's kept states, where this run hands over another way (a branch)."""
+        return key.startswith("fit_")
 
     def _layer_terms(self, student: MLP, obs: torch.Tensor, teacher_z: list[list[torch.Tensor]],
                      weights: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
@@ -280,6 +303,15 @@ class MiktActorCritic(ActorCritic):
                 getattr(self, f"fold_{branch}{j}_uu").lerp_(u.T @ u / u.shape[0], 1.0 - keep)
                 getattr(self, f"fold_{branch}{j}_uc").lerp_(u.T @ c / u.shape[0], 1.0 - keep)
         self.fold_rollouts += 1
+        if self.config.handover == "fold-fit":
+            self._keep_fit_states(obs)
+
+    def _keep_fit_states(self, obs: torch.Tensor) -> None:
+        capacity = self.fit_obs.shape[0]
+        obs = obs[-capacity:]  # a rollout larger than the ring: its last rows
+        rows = (int(self.fit_count) + torch.arange(obs.shape[0])) % capacity
+        self.fit_obs[rows] = obs
+        self.fit_count += obs.shape[0]
 
     @torch.no_grad()
     def fold_teachers_into_student(self) -> None:
@@ -294,7 +326,7 @@ class MiktActorCritic(ActorCritic):
         for branch, net, weights in (("pi", self.pi, w_pi), ("vf", self.vf, w_vf)):
             for j, (w, b) in enumerate(net.layer_params):
                 p_student = weights[j, 0]
-                if self.config.handover == "fold-linear":
+                if self.config.handover in ("fold-linear", "fold-fit"):  # fold-fit starts from fold-linear
                     uu = getattr(self, f"fold_{branch}{j}_uu").double()
                     uc = getattr(self, f"fold_{branch}{j}_uc").double()
                     ridge = 1e-6 * float(uu.diagonal().mean()) + 1e-12
@@ -305,6 +337,36 @@ class MiktActorCritic(ActorCritic):
                 # in place: the parameters are views into the optimiser's flat buffer
                 w.mul_(p_student).add_(linear)
                 b.mul_(p_student).add_(offset)
+
+    FIT_HOLDOUT_EVERY = 10  # every 10th kept state is held out: the fit keeps the weights best on them
+
+    @torch.no_grad()
+    def fit_teachers_into_student(self) -> None:
+        """fold-fit: fold-linear, then regress the teacher-free policy mean and value onto the mixed network's
+        on the kept states. Policy error in units of the policy's std (½ Σ ((μ − μ*)/σ)², the KL of two
+        Gaussians with that std), value error in units of the targets' variance."""
+        filled = min(int(self.fit_count), self.fit_obs.shape[0])
+        if filled < 2 * self.FIT_HOLDOUT_EVERY:
+            raise MiktError("handover 'fold-fit': the checkpoint holds no observations to fit on (it was "
+                            "written before the hand-over window, or by a run of another hand-over)",
+                            hint="branch at before-handover-window, so the window's rollouts are kept")
+        obs = self.fit_obs[:filled]
+        embs = self.embeddings(obs)
+        w_pi, w_vf = self.forward_weights()
+        targets = {"pi": self._policy(obs, embs, w_pi), "vf": self._value(obs, embs, w_vf).unsqueeze(-1)}
+        self.fold_teachers_into_student()
+        scale = {"pi": torch.exp(self.log_std).square().reciprocal(),
+                 "vf": targets["vf"].var().clamp(min=1e-8).reciprocal().expand(1)}
+        held = torch.arange(filled) % self.FIT_HOLDOUT_EVERY == 0
+        report = {"states": float(filled), "steps": float(self.config.fit_steps)}
+        for branch, net in (("pi", self.pi), ("vf", self.vf)):
+            before, after = fit_network(net, obs, targets[branch], scale[branch], held, self.config.fit_steps,
+                                        self.config.fit_lr)
+            report[f"{branch}_heldout_error_fold_linear"], report[f"{branch}_heldout_error_fit"] = before, after
+        self.handover_fit = report
+
+    def handover_details(self) -> dict[str, float]:
+        return dict(self.handover_fit)
 
     # --- forward ------------------------------------------------------------------------------------
     def mixing_weights(self) -> tuple[torch.Tensor, torch.Tensor]:
@@ -511,6 +573,40 @@ class _RolloutPreactivations:
             torch.addmm(b, x, w_t, out=z)
             x = torch.tanh(z, out=h) if self.tanh else self.act_(h.copy_(z))
         return self.z
+
+
+def fit_network(net: MLP, obs: torch.Tensor, target: torch.Tensor, scale: torch.Tensor, held: torch.Tensor,
+                steps: int, lr: float) -> tuple[float, float]:
+    """Full-batch Adam on ½ mean Σ scale·(net(obs) − target)² over the rows not held out, into `net`'s
+    parameters in place (views into the trainer's flat buffer: copied into, never replaced); keeps the
+    weights with the lowest error on the held-out rows, checked every 10 steps. Returns the held-out error
+    before and after."""
+    own = dict(net.named_parameters())
+    live = {name: p.detach().clone().requires_grad_(True) for name, p in own.items()}
+
+    def error(rows: torch.Tensor) -> torch.Tensor:
+        out = torch.func.functional_call(net, live, (obs[rows],))
+        return 0.5 * ((out - target[rows]).square() * scale).sum(-1).mean()
+
+    def snapshot() -> dict[str, torch.Tensor]:
+        return {name: t.detach().clone() for name, t in live.items()}
+
+    first = best = float(error(held))
+    kept = snapshot()
+    with torch.enable_grad():
+        optimiser = torch.optim.Adam(live.values(), lr=lr)
+        for step in range(1, steps + 1):
+            optimiser.zero_grad(set_to_none=True)
+            error(~held).backward()
+            optimiser.step()
+            if step % 10 == 0 or step == steps:
+                with torch.no_grad():
+                    now = float(error(held))
+                if now < best:
+                    best, kept = now, snapshot()
+    for name, param in own.items():
+        param.copy_(kept[name])
+    return first, best
 
 
 def _sum_into(out: torch.Tensor, zeros: torch.Tensor, terms: tuple[torch.Tensor, ...]) -> torch.Tensor:

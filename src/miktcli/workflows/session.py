@@ -245,8 +245,10 @@ class Job:
         finally:
             torch.random.set_rng_state(rng)
         kept = alone["return_mean"] / mixed["return_mean"] if mixed["return_mean"] > 0 else None
-        return {"at_step": trainer.global_step, "with_teachers": mixed, "without_teachers": alone,
-                "kept_fraction": kept}
+        record = {"at_step": trainer.global_step, "with_teachers": mixed, "without_teachers": alone,
+                  "kept_fraction": kept}
+        details = agent.handover_details()
+        return {**record, "fit": details} if details else record
 
     @property
     def final_return(self) -> float | None:
