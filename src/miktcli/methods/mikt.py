@@ -575,6 +575,7 @@ class _RolloutPreactivations:
         return self.z
 
 
+@torch.no_grad()
 def fit_network(net: MLP, obs: torch.Tensor, target: torch.Tensor, scale: torch.Tensor, held: torch.Tensor,
                 steps: int, lr: float) -> tuple[float, float]:
     """Full-batch Adam on ½ mean Σ scale·(net(obs) − target)² over the rows not held out, into `net`'s
