@@ -163,7 +163,7 @@ def test_snapshots_restore_into_a_fresh_registry_so_the_study_skips_finished_cel
     key0, key1, key2 = (cell_key(*cell) for cell in study.plan())
     unfinished = study.prepare("test")[1][1].id  # run1-run3 prepared; seed 1's and seed 2's never train
     finished = fake_run(registry, "hopper", "vpg", 0, [1, 2, 3], 5)  # run4, seed 0's
-    study._remember(key0, finished)
+    study.state.remember(key0, finished)
     script = [out, "--registry", registry]
     snapshot_script(*script)
     assert (out / "runs" / finished / "metrics.jsonl").exists() and not (out / "runs" / unfinished).exists()

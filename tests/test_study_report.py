@@ -41,11 +41,11 @@ def test_report_numbers_against_a_hand_computed_grid(registry, tmp_path):
     pair_a = grid.pairs[0]
     methods = {m.name: m for m in grid.methods}
     for (_source, method, seed), run_id in cells.items():
-        study._remember(cell_key(pair_a, methods[method], seed), run_id)
+        study.state.remember(cell_key(pair_a, methods[method], seed), run_id)
     from miktcli.registry.runs import open_run
     unfinished = fake_run(registry, "hopper", "mikt", 0, [-3, -2, -1], 0, teachers=["b"])
     open_run(registry, unfinished).save_card(status="created", steps_done=0, result={})  # prepared, never trained
-    study._remember(cell_key(grid.pairs[1], methods["mikt"], 0), unfinished)
+    study.state.remember(cell_key(grid.pairs[1], methods["mikt"], 0), unfinished)
     study.report()
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     mikt, vpg = summary["a → hopper"]["mikt"], summary["a → hopper"]["vpg"]
@@ -94,7 +94,7 @@ def test_several_methods_weights_are_drawn_one_panel_per_method(monkeypatch, reg
     study = Study(load_grid(grid_file), tmp_path / "out", registry)
     mix = {"p_pi_0": 0.5, "w_pi_0_t0": 0.3, "w_pi_0_t1": 0.2}
     for pair, method, seed in study.plan()[:3]:  # b has one seed of two
-        study._remember(cell_key(pair, method, seed),
+        study.state.remember(cell_key(pair, method, seed),
                         fake_run(registry, "hopper", "mikt", seed, [1, 2, 3], 5, mix, teachers=["x", "y"]))
     drawn = []
     real = render_figures.png_panels
@@ -123,7 +123,7 @@ def test_completed_runs_with_incomplete_files_are_left_out_and_named(registry, t
     study = Study(grid, tmp_path / "out", registry)
     ids = [fake_run(registry, "hopper", "vpg", seed, [10, 20, 30 + seed], 5) for seed in range(3)]
     for seed, run_id in enumerate(ids):
-        study._remember(f"->hopper|vpg|{seed}", run_id)
+        study.state.remember(f"->hopper|vpg|{seed}", run_id)
     truncated = open_run(registry, ids[1])
     truncated.metrics_path.write_text(truncated.metrics_path.read_text().splitlines(keepends=True)[0])
     no_eval = open_run(registry, ids[2])
@@ -148,7 +148,7 @@ def test_a_pair_without_finished_runs_names_the_same_mark_columns(registry, tmp_
                                 "methods": [{"name": "vpg", "method": "vpg"}],
                                 "pairs": [{"from": ["x"], "to": "hopper"}, {"from": ["y"], "to": "ant"}]})
     study = Study(grid, tmp_path / "out", registry)
-    study._remember("->hopper|vpg|0", fake_run(registry, "hopper", "vpg", 0, [10, 20, 30], 5))
+    study.state.remember("->hopper|vpg|0", fake_run(registry, "hopper", "vpg", 0, [10, 20, 30], 5))
     study.report()
     table = (tmp_path / "out" / "results.md").read_text()
     # 4000 is logged at 2048 (the last iteration at or before it): the empty ant table says so too
@@ -187,8 +187,8 @@ def test_a_run_that_lost_leading_rows_is_left_out_and_named_not_aligned_by_row_i
     study = study_of(registry, tmp_path, [0, 1], marks=[4096, 8192])
     whole = completed_run(registry, 0, list(zip(steps_of(1, 2, 3, 4), [10, 20, 30, 40], strict=True)))
     gappy = completed_run(registry, 1, list(zip(steps_of(3, 4), [300, 400], strict=True)))
-    study._remember("->hopper|vpg|0", whole)
-    study._remember("->hopper|vpg|1", gappy)
+    study.state.remember("->hopper|vpg|0", whole)
+    study.state.remember("->hopper|vpg|1", gappy)
     report = study.report()
     assert report.left_out == [f"{gappy}: metrics.jsonl lacks 2 of its 4 iterations' rows "
                                "(the first missing at 2,048 steps)"]
@@ -203,8 +203,8 @@ def test_a_run_that_lost_a_middle_row_is_left_out_and_named(registry, tmp_path):
     study = study_of(registry, tmp_path, [0, 1])
     whole = completed_run(registry, 0, list(zip(steps_of(1, 2, 3, 4), [10, 20, 30, 40], strict=True)))
     gappy = completed_run(registry, 1, list(zip(steps_of(1, 2, 4), [1, 2, 4], strict=True)))
-    study._remember("->hopper|vpg|0", whole)
-    study._remember("->hopper|vpg|1", gappy)
+    study.state.remember("->hopper|vpg|0", whole)
+    study.state.remember("->hopper|vpg|1", gappy)
     assert study.report().left_out == [f"{gappy}: metrics.jsonl lacks 1 of its 4 iterations' rows "
                                        "(the first missing at 6,144 steps)"]
 
@@ -212,7 +212,7 @@ def test_a_run_that_lost_a_middle_row_is_left_out_and_named(registry, tmp_path):
 def test_rows_at_steps_that_are_not_the_runs_iterations_are_named(registry, tmp_path):
     study = study_of(registry, tmp_path, [0])
     odd = completed_run(registry, 0, [(2048, 1), (4096, 2), (5000, 3), (6144, 3), (8192, 4)])
-    study._remember("->hopper|vpg|0", odd)
+    study.state.remember("->hopper|vpg|0", odd)
     assert study.report().left_out == [f"{odd}: metrics.jsonl has a row at 5,000 steps, which is not one of "
                                        "its iterations (every 2,048 steps)"]
 
@@ -223,8 +223,8 @@ def test_seeds_with_different_rollout_sizes_are_compared_at_the_steps_they_share
     study = study_of(registry, tmp_path, [0, 1], marks=[4096, 8192])
     fine = completed_run(registry, 0, list(zip(steps_of(1, 2, 3, 4), [10, 20, 30, 40], strict=True)))
     coarse = completed_run(registry, 1, [(4096, 60), (8192, 80)], n_steps=4096)
-    study._remember("->hopper|vpg|0", fine)
-    study._remember("->hopper|vpg|1", coarse)
+    study.state.remember("->hopper|vpg|0", fine)
+    study.state.remember("->hopper|vpg|1", coarse)
     report = study.report()
     assert report.left_out == []
     vpg = json.loads((tmp_path / "out" / "summary.json").read_text())["x → hopper"]["vpg"]
@@ -237,8 +237,8 @@ def test_a_seed_sharing_no_logged_step_with_the_others_is_left_out_and_named(reg
     study = study_of(registry, tmp_path, [0, 1])
     fine = completed_run(registry, 0, list(zip(steps_of(1, 2, 3, 4), [10, 20, 30, 40], strict=True)))
     other = completed_run(registry, 1, [(3000, 1), (6000, 2), (9000, 3)], n_steps=3000)
-    study._remember("->hopper|vpg|0", fine)
-    study._remember("->hopper|vpg|1", other)
+    study.state.remember("->hopper|vpg|0", fine)
+    study.state.remember("->hopper|vpg|1", other)
     assert study.report().left_out == [f"{other}: logs every 3,000 steps, at none of the steps {fine} logs at"]
     vpg = json.loads((tmp_path / "out" / "summary.json").read_text())["x → hopper"]["vpg"]
     assert vpg["runs"] == [fine] and vpg["final_train_mean"] == 40.0
@@ -294,7 +294,7 @@ def study_with(registry, tmp_path, cells=FINALS, extra="", baseline="vpg"):
     for key, final in cells.items():
         target, method, seed = key.split(">")[1].split("|")
         teachers = [] if method == "vpg" else ["four"]
-        study._remember(key, fake_run(registry, target, method, int(seed), [0, 0, final], 1, teachers=teachers))
+        study.state.remember(key, fake_run(registry, target, method, int(seed), [0, 0, final], 1, teachers=teachers))
     return study, grid_file
 
 
@@ -384,8 +384,8 @@ def test_the_section_says_why_numbers_are_missing(registry, tmp_path, measured, 
     assert "No aggregates across pairs: no completed `vpg` run yet: nothing to normalise by." in section(out)
     assert measured == []
     # the baseline on hopper only: ant's pair is left out, named
-    study._remember("->hopper|vpg|0", fake_run(registry, "hopper", "vpg", 0, [0, 0, 10], 1))
-    study._remember("->hopper|vpg|1", fake_run(registry, "hopper", "vpg", 1, [0, 0, 30], 1))
+    study.state.remember("->hopper|vpg|0", fake_run(registry, "hopper", "vpg", 0, [0, 0, 10], 1))
+    study.state.remember("->hopper|vpg|1", fake_run(registry, "hopper", "vpg", 1, [0, 0, 30], 1))
     study.report()
     text = section(out)
     assert "- no completed `vpg` run on ant yet: its pairs (four → ant) are left out" in text
@@ -394,7 +394,7 @@ def test_the_section_says_why_numbers_are_missing(registry, tmp_path, measured, 
     # a baseline no better than random on ant: its pair is left out of the measure, the rest reported
     monkeypatch.setitem(RANDOM, "ant", 100.0)
     for seed, final in ((0, 20), (1, 40)):
-        study._remember(f"->ant|vpg|{seed}", fake_run(registry, "ant", "vpg", seed, [0, 0, final], 1))
+        study.state.remember(f"->ant|vpg|{seed}", fake_run(registry, "ant", "vpg", seed, [0, 0, final], 1))
     study.report()
     text = section(out)
     assert ("- `vpg` scores 30.0 (final return) on ant, no better than the random policy's 100.0: no scale to "

@@ -53,7 +53,7 @@ def test_a_cell_whose_run_id_now_names_another_run_is_an_error_not_a_result(regi
                          '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
     study = Study(load_grid(grid_file), tmp_path / "out", registry)
     other = fake_run(registry, "ant", "vpg", 0, [1, 2, 3], 5)  # a finished run of another cell
-    study._remember(cell_key(*study.plan()[0]), other)
+    study.state.remember(cell_key(*study.plan()[0]), other)
     for args in (["--report-only"], []):
         r = runner.invoke(app, ["study", str(grid_file), "--out", str(tmp_path / "out"), *args])
         assert r.exit_code == 1, r.output
@@ -73,7 +73,7 @@ def test_a_run_recording_the_budget_as_asked_still_is_its_cell_and_a_wrong_budge
                          '[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
     study = Study(load_grid(grid_file), tmp_path / "out", registry)
     run_id = fake_run(registry, "hopper", "vpg", 0, [1, 2], 5)  # records 4,096 steps
-    study._remember(cell_key(*study.plan()[0]), run_id)
+    study.state.remember(cell_key(*study.plan()[0]), run_id)
     r = runner.invoke(app, ["study", str(grid_file), "--out", str(tmp_path / "out"), "--report-only"])
     assert r.exit_code == 1 and "trains 4,096 steps, the grid 5,000 (6,144 in whole rollouts of 2,048)" in r.output
     open_run(registry, run_id).save_card(total_steps=5000)  # the budget as asked, as mikt before 9519580 wrote it
@@ -151,18 +151,19 @@ def study_of(registry, tmp_path, seeds):
 
 
 def test_preparing_many_cells_does_not_rewrite_state_json_per_cell(registry, tmp_path, monkeypatch):
+    import miktcli.studies.state as state_module
     import miktcli.studies.study as study_module
 
     writes = []
-    real_write = study_module.write_text_atomic
-    monkeypatch.setattr(study_module, "write_text_atomic",
+    real_write = state_module.write_text_atomic
+    monkeypatch.setattr(state_module, "write_text_atomic",
                         lambda path, text: (writes.append(path), real_write(path, text))[1])
     monkeypatch.setattr(study_module, "STATE_WRITE_EVERY_S", 3600.0)  # one write at the end, however slow here
     study = study_of(registry, tmp_path, 40)
     cells = study.prepare("test")
-    state = json.loads(study.state_path.read_text())
+    state = json.loads(study.state.path.read_text())
     assert len(cells) == len(state) == 40 and [run.id for _, run in cells] == [f"run{i}" for i in range(1, 41)]
-    assert writes.count(study.state_path) == 1
+    assert writes.count(study.state.path) == 1
 
 
 def test_a_preparation_stopped_part_way_names_the_runs_it_created(registry, tmp_path, monkeypatch):
@@ -181,7 +182,7 @@ def test_a_preparation_stopped_part_way_names_the_runs_it_created(registry, tmp_
     study = study_of(registry, tmp_path, 8)
     with pytest.raises(KeyboardInterrupt):
         study.prepare("test")
-    assert sorted(json.loads(study.state_path.read_text()).values()) == sorted(run.id for run in made)
+    assert sorted(json.loads(study.state.path.read_text()).values()) == sorted(run.id for run in made)
     monkeypatch.setattr(study_module, "start_transfer", real_start)
     cells = study_of(registry, tmp_path, 8).prepare("test")  # the next start reuses them, makes the rest
     assert [run.id for _, run in cells] == [f"run{i}" for i in range(1, 9)]
@@ -238,7 +239,7 @@ def test_a_prepared_run_that_never_trained_is_not_started_rather_than_stale(regi
     grid = Grid.model_validate({"name": "g", "steps": 2048, "seeds": [0], "methods": [{"name": "vpg", "method": "vpg"}],
                                 "pairs": [{"from": ["x"], "to": "centipede-four"}]})
     study = Study(grid, registry.parent / "out", registry)
-    study._remember(cell_key(*study.plan()[0]), run.id)
+    study.state.remember(cell_key(*study.plan()[0]), run.id)
     study.prepare("test")
     assert open_run(registry, run.id).card.status == "created"
 

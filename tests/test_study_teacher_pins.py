@@ -63,7 +63,7 @@ def test_the_report_shows_the_teacher_versions_and_a_mix(teacher_v1, tmp_path):
     publish_next_version(registry)
     other = start_transfer(registry, to="hopper", method="mikt", teacher_refs=["tt@v2"], steps=2048, seed=1,
                            command="test")
-    study._remember("tt>hopper|mikt|1", other.id)
+    study.state.remember("tt>hopper|mikt|1", other.id)
     study.report()
     assert (f"Teachers: `tt` → **mixed versions**: tt@v1 (sha256 {sha[:12]}; {cells[0][1].id}), "
             f"tt@v2 (sha256 {sha[:12]}; {other.id}).") in (out / "results.md").read_text()

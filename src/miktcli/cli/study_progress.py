@@ -80,5 +80,6 @@ def cell_line(event: CellEvent, done: int, total: int) -> str | None:
 
 def pin_lines(study) -> list[str]:
     """The versions this session pinned for references that name none (studies.pins)."""
-    return [f"study: `{ref}` pinned to {pin.ref} ({study.pins_path.name}); a later version of "
-            f"{ref.split('@')[0]} does not change this study" for ref, pin in study.new_pins if "@v" not in ref]
+    pins = study.teacher_pins
+    return [f"study: `{ref}` pinned to {pin.ref} ({pins.path.name}); a later version of "
+            f"{ref.split('@')[0]} does not change this study" for ref, pin in pins.new if "@v" not in ref]

@@ -11,6 +11,7 @@ of that name is another file (another machine's).
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, RootModel, ValidationError
@@ -74,3 +75,32 @@ def check_pin(registry: Path, path: Path, ref: str, pin: Pin) -> None:
                         f"{registry} is another file (sha256 {found[:12]})",
                         hint="use the registry the study was prepared with, or move teachers.json away to pin "
                              "the versions this registry holds")
+
+
+class TeacherPins:
+    """The pins of one study folder: read once, completed for the references that have none, checked."""
+
+    def __init__(self, out_dir: Path):
+        self.path = Path(out_dir) / PINS_FILE
+        self.pins: dict[str, Pin] = {}
+        self.new: list[tuple[str, Pin]] = []  # (grid reference, pin) pinned by the last `pin`
+
+    def pin(self, registry: Path, refs: list[str], used: Callable[[list[str]], dict[str, Pin]]) -> None:
+        """Each reference → one version for the whole study: its pin in teachers.json, else `used(missing)`'s
+        (the version the study's earliest run trained with: a study prepared before pins existed), else the
+        version it means now. Checked against this registry's files before any cell is created."""
+        self.pins, self.new = read_pins(self.path), []
+        missing = [ref for ref in refs if ref not in self.pins]
+        earlier = used(missing) if missing else {}
+        for ref in missing:
+            pin = earlier.get(ref) or pin_now(registry, ref)
+            self.pins[ref] = pin
+            self.new.append((ref, pin))
+        for ref in refs:
+            check_pin(registry, self.path, ref, self.pins[ref])
+        if self.new:
+            write_pins(self.path, self.pins)
+
+    def ref(self, grid_ref: str) -> str:
+        """The exact version a grid reference stands for in this study (after `pin`)."""
+        return self.pins[grid_ref].ref

@@ -29,8 +29,8 @@ from typing import NamedTuple
 from miktcli.errors import MiktError
 from miktcli.registry.files import write_bytes_atomic, write_text_atomic
 from miktcli.registry.runs import lock_owner, open_run, runs_dir
-from miktcli.studies.study import by_run_number
-from miktcli.studies.study import read_state as read_state_file
+from miktcli.studies.state import by_run_number
+from miktcli.studies.state import read_state as read_state_file
 
 IN_FLIGHT = "in-flight"
 IN_FLIGHT_FILES = ("checkpoint.safetensors", "metrics.jsonl", "run.json")  # the card last, as a run writes it

@@ -9,10 +9,7 @@ prepared cells; `report` aggregates whatever has finished.
 from __future__ import annotations
 
 import functools
-import json
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 from miktcli import compat
@@ -22,14 +19,13 @@ from miktcli.envs.spec import load_spec
 from miktcli.errors import MiktError
 from miktcli.registry import location
 from miktcli.registry.cards import TeacherRef
-from miktcli.registry.files import write_text_atomic
-from miktcli.registry.locks import FileLock, lock_holder
-from miktcli.registry.runs import Run, lock_owner, open_run, run_number, runs_dir
+from miktcli.registry.runs import Run, lock_owner, open_run, runs_dir
 from miktcli.registry.teachers import REF_RE, resolve
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key
-from miktcli.studies.pins import PINS_FILE, Pin, check_pin, pin_now, read_pins, write_pins
+from miktcli.studies.pins import Pin, TeacherPins
 from miktcli.studies.report import Report, write_report
 from miktcli.studies.sections import requested
+from miktcli.studies.state import StudyState, by_run_number
 from miktcli.workflows.session import whole_rollouts
 from miktcli.workflows.transfer import start_transfer
 
@@ -64,90 +60,31 @@ def cell_mismatch(run: Run, pair: PairSpec, method: MethodSpec, seed: int, steps
 
 
 STATE_WRITE_EVERY_S = 1.0  # while preparing: state.json at most this often (and at the end), not per cell
-LOCK_FILE = ".lock"  # in the study folder: held by the one process driving the study (see Study.driving)
-
-
-def read_state(path: Path) -> dict[str, str]:
-    """A state.json's cell → run id map ({} where there is none yet); a damaged one is a one-line error."""
-    if not path.exists():
-        return {}
-    try:
-        cells = json.loads(path.read_bytes().decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
-        raise MiktError(f"{path}: damaged study state: {type(err).__name__}: {err}",
-                        hint="restore it, or move it away to start the study afresh") from err
-    if not (isinstance(cells, dict) and all(isinstance(k, str) and isinstance(v, str) for k, v in cells.items())):
-        raise MiktError(f"{path}: damaged study state: expected an object of cell → run id",
-                        hint="restore it, or move it away to start the study afresh")
-    return cells
-
-
-def by_run_number(cells: dict[str, str]) -> list[tuple[str, str]]:
-    """The (cell, run id) pairs in the order their runs were created (run9 before run10)."""
-    return sorted(cells.items(), key=lambda cell_run: run_number(cell_run[1]))
 
 
 class Study:
+    """A grid's cells on one registry: its folder's state and lock (studies.state), its teacher pins
+    (studies.pins), and the preparation of each cell as an ordinary transfer run."""
+
     def __init__(self, grid: Grid, out_dir: Path, registry: Path):
         requested(grid)  # the report sections it asks for, checked before any cell exists
         self.grid, self.out_dir, self.registry = grid, Path(out_dir), Path(registry)
-        self.state_path = self.out_dir / "state.json"
-        self.lock = FileLock(self.out_dir / LOCK_FILE)
-        self._driving = 0  # depth of `driving()` blocks: the lock is kept until the outermost one ends
-        self.pins_path = self.out_dir / PINS_FILE
-        self.pins: dict[str, Pin] = {}
-        self.new_pins: list[tuple[str, Pin]] = []  # (grid reference, pin) pinned by the last `prepare`
-        self.cells: dict[str, str] = {}
-        self._load_state()
-
-    def _load_state(self) -> None:
         # the runs of a state.json written by mikt 0.1 are adopted under today's keys
-        self.cells = compat.adopt_cells(read_state(self.state_path), (
-            (cell_key(p, m, s), compat.cell_key(p.teachers, p.to, m.name, s)) for p, m, s in self.plan()))
+        self.state = StudyState(self.out_dir, lambda cells: compat.adopt_cells(cells, (
+            (cell_key(p, m, s), compat.cell_key(p.teachers, p.to, m.name, s)) for p, m, s in self.plan())))
+        self.teacher_pins = TeacherPins(self.out_dir)
 
-    @contextmanager
-    def driving(self) -> Iterator[Study]:
-        """Drive the study: the first `prepare` inside takes the study folder's lock, and it is kept until the
-        block ends, so that no second driver trains the same cells (two drivers each trained every cell, and
-        state.json and results.md then named different runs). Reading the folder (`report`) needs no lock."""
-        self._driving += 1
-        try:
-            yield self
-        finally:
-            self._driving -= 1
-            if not self._driving:
-                self.lock.release()
+    @property
+    def cells(self) -> dict[str, str]:
+        return self.state.cells
 
-    def _take_lock(self) -> None:
-        """The study folder's lock, then state.json as it is now (another driver may have written it since
-        this object read it)."""
-        if self.lock.held:
-            return
-        try:
-            self.out_dir.mkdir(parents=True, exist_ok=True)
-            taken = self.lock.try_acquire()  # creates a file: also the check that the folder is writable
-        except OSError as err:  # before any run exists: else each try leaves one behind
-            raise MiktError(f"cannot write the study's results to {self.out_dir}: {err.strerror or err}",
-                            hint="choose another --out") from None
-        if not taken:
-            owner = lock_holder(self.lock.path)
-            raise MiktError(f"{self.out_dir} is driven by another `mikt study` (pid {owner if owner else '?'})",
-                            hint="wait for it to end, or stop it (Ctrl-C or SIGTERM) and start again; "
-                                 "--report-only reads the folder meanwhile")
-        self._load_state()
+    def driving(self):
+        """The study folder's driver lock, kept until the block ends (StudyState.driving)."""
+        return self.state.driving()
 
     @functools.cached_property
     def _cell_of(self) -> dict[str, tuple[PairSpec, MethodSpec, int]]:
         return {cell_key(*cell): cell for cell in self.plan()}
-
-    def _remember(self, key: str, run_id: str, write: bool = True) -> None:
-        self.cells[key] = run_id
-        if write:
-            self._write_state()
-
-    def _write_state(self) -> None:
-        self.out_dir.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(self.state_path, json.dumps(self.cells, indent=2, ensure_ascii=False))
 
     def plan(self) -> list[tuple[PairSpec, MethodSpec, int]]:
         """Every (pair, method, seed) of the grid; cells with the same key share one run."""
@@ -180,22 +117,6 @@ class Study:
         for ref in self.teacher_refs():
             resolve(self.registry, ref)
 
-    def _pin_teachers(self) -> None:
-        """Each teacher reference → one version for the whole study (studies.pins): the pin of teachers.json,
-        else the version the study's earliest run used (a study prepared before pins existed), else the version
-        the reference means now. Checked against this registry's files before any cell is created."""
-        self.pins, self.new_pins = read_pins(self.pins_path), []
-        missing = [ref for ref in self.teacher_refs() if ref not in self.pins]
-        used = self._versions_used(missing) if missing else {}
-        for ref in missing:
-            pin = used.get(ref) or pin_now(self.registry, ref)
-            self.pins[ref] = pin
-            self.new_pins.append((ref, pin))
-        for ref in self.teacher_refs():
-            check_pin(self.registry, self.pins_path, ref, self.pins[ref])
-        if self.new_pins:
-            write_pins(self.pins_path, self.pins)
-
     def _versions_used(self, refs: list[str]) -> dict[str, Pin]:
         """For each reference, the teacher the study's earliest-created run trained with, where one did."""
         used: dict[str, Pin] = {}
@@ -223,7 +144,7 @@ class Study:
         cell = self._cell_of.get(key)
         mismatch = cell_mismatch(run, *cell, self.grid.steps) if cell else None
         if mismatch:
-            raise MiktError(f"{self.state_path}: cell {key} names {run_id}, but {run_id} {mismatch}",
+            raise MiktError(f"{self.state.path}: cell {key} names {run_id}, but {run_id} {mismatch}",
                             hint="another run took that id (a registry restored without this study's runs?); "
                                  "remove the cell's entry from state.json to train it afresh")
         return run
@@ -243,18 +164,18 @@ class Study:
         self.check_envs()
         self.check_teachers()
         with self.driving():
-            self._take_lock()
+            self.state.take_lock()
             return self._prepare_cells(command, retrain_missing)
 
     def _prepare_cells(self, command: str, retrain_missing: bool) -> list[tuple[str, Run]]:
         missing = self.missing_runs()
         if missing and not retrain_missing:
             ids = ", ".join(run_id for _, run_id in missing[:5]) + (" …" if len(missing) > 5 else "")
-            raise MiktError(f"{self.state_path} names {len(missing)} run(s) that registry "
+            raise MiktError(f"{self.state.path} names {len(missing)} run(s) that registry "
                             f"{location.describe(self.registry)} lacks: {ids}",
                             hint=f"is this the study's registry? Restore its runs (mikt study restore {self.out_dir} "
                                  "--registry REGISTRY), or pass --retrain-missing to train those cells afresh")
-        self._pin_teachers()
+        self.teacher_pins.pin(self.registry, self.teacher_refs(), self._versions_used)
         self._check_envs_unchanged()
         cells: list[tuple[str, Run]] = []
         # state.json is rewritten whole, so writing it per new cell made preparing N cells quadratic in N; it is
@@ -266,11 +187,11 @@ class Study:
                 if self._prepare_cell(pair, method, seed, command, cells):
                     unwritten = True
                     if time.monotonic() - written_at >= STATE_WRITE_EVERY_S:
-                        self._write_state()
+                        self.state.write()
                         unwritten, written_at = False, time.monotonic()
         finally:
             if unwritten:
-                self._write_state()
+                self.state.write()
         return cells
 
     def _check_envs_unchanged(self) -> None:
@@ -297,13 +218,13 @@ class Study:
         if run is None:
             run = start_transfer(
                 self.registry, to=pair.to, method=method.method,
-                teacher_refs=[self.pins[ref].ref for ref in pair.teachers] if method.uses_teachers else [],
+                teacher_refs=[self.teacher_pins.ref(ref) for ref in pair.teachers] if method.uses_teachers else [],
                 steps=self.grid.steps,
                 seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, options=method.options,
                 compile_loss=self.grid.compile_loss, eval_episodes=self.grid.eval_episodes,
                 ppo_settings=method.ppo,
             )
-            self._remember(key, run.id, write=False)
+            self.state.remember(key, run.id, write=False)
             created = True
         elif (run.card.status in ("running", "interrupted") and run.card.steps_done == 0
               and not run.checkpoint_path.exists() and lock_owner(run) is None):
@@ -318,7 +239,7 @@ class Study:
         report would pass for a study without results)."""
         self.check_envs()  # training checks it before any cell is created
         if not self.cells:
-            why = f"{self.state_path.name} names no cell" if self.state_path.is_file() else f"no {self.state_path.name}"
+            why = f"{self.state.path.name} names no cell" if self.state.path.is_file() else f"no {self.state.path.name}"
             raise MiktError(f"{self.out_dir} holds no study yet ({why}): nothing to report",
                             hint=f"is --out right? Start the study with: mikt study {grid_file} --out {self.out_dir}")
         return self.report()
