@@ -83,9 +83,9 @@ def compiled_clip_adam(tr: PPOTrainer) -> Callable[[], torch.Tensor]:
     state = tr.optimizer.state[tr.flat.flat]
     flat, grad = tr.flat.flat.data, tr.flat.flat.grad
     m, v, count = state["exp_avg"], state["exp_avg_sq"], state["step"]
-    group = tr.optimizer.param_groups[0]
-    (b1, b2), eps = group["betas"], group["eps"]
-    lr, max_norm = torch.tensor(float(group["lr"])), torch.tensor(float(tr.config.max_grad_norm))
+    opt = tr.optimizer
+    (b1, b2), eps = opt.betas, opt.eps
+    lr, max_norm = torch.tensor(float(opt.lr)), torch.tensor(float(tr.config.max_grad_norm))
 
     def post(flat, grad, m, v, count, lr, max_norm):
         norm = torch.linalg.vector_norm(grad)

@@ -178,3 +178,37 @@ def test_cat_s_value_loss_is_there_by_name_with_its_zero_target():
         expected = 0.5 * torch.max(value.square(), (clipped - mb.returns).square()).mean()
     torch.testing.assert_close(logs["loss_value"], expected)
     assert PPOConfig().value_loss == "ppo2"
+
+
+@pytest.mark.parametrize("lrs", [[3e-4] * 6, [3e-4, 2e-4, 1e-4, 5e-5, 1e-5, 0.0]])
+def test_the_engine_s_adam_is_torch_s_fused_adam_bit_for_bit(lrs):
+    from miktcli.engine.adam import FusedAdam
+
+    gen = torch.Generator().manual_seed(0)
+    ours, theirs = (torch.nn.Parameter(torch.randn(1000, generator=torch.Generator().manual_seed(1)))
+                    for _ in range(2))
+    mine = FusedAdam([ours], lr=lrs[0], eps=1e-5)
+    reference = torch.optim.Adam([theirs], lr=lrs[0], eps=1e-5, fused=True)
+    for lr in lrs:
+        grad = torch.randn(1000, generator=gen) * 10 ** float(torch.randint(-6, 2, (), generator=gen))
+        ours.grad, theirs.grad = grad.clone(), grad.clone()
+        mine.lr = lr
+        for group in reference.param_groups:
+            group["lr"] = lr
+        mine.step()
+        reference.step()
+        assert torch.equal(ours.data, theirs.data)
+    for key, value in reference.state[theirs].items():
+        assert torch.equal(mine.state_of(ours)[key], value), key
+
+
+def test_a_trainer_resumes_adam_s_moments_and_step_count():
+    t = trainer(steps=768)
+    next(t.run())
+    tensors = t.state_tensors()
+    assert float(tensors["optim.step"]) == t.config.epochs * (t.config.n_steps * t.config.num_envs
+                                                               // t.config.minibatch_size)
+    other = trainer(steps=768, seed=1)
+    other.load_state(tensors, t.progress_state())
+    for key in ("step", "exp_avg", "exp_avg_sq"):
+        assert torch.equal(other.optimizer.state_of(other.flat.flat)[key], tensors[f"optim.{key}"]), key

@@ -4,11 +4,14 @@ serial executor's line per cell, and the study's overview."""
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
 from rich.table import Table
 
 from miktcli.cli.console import err
-from miktcli.studies.executor import CellEvent
+
+if TYPE_CHECKING:  # the study machinery (reports, scipy) is imported by `mikt study` alone, not by every command
+    from miktcli.studies.executor import CellEvent
 
 
 def duration(seconds: float | None) -> str:

@@ -22,6 +22,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from miktcli import compat
+from miktcli.engine.adam import FusedAdam
 from miktcli.engine.flatparams import FlatParameters
 from miktcli.engine.nets import update_moments
 from miktcli.engine.policies import ActorCritic, gaussian_kl, gaussian_log_prob
@@ -302,11 +303,7 @@ class PPOTrainer:
         with torch.no_grad():
             self.agent.log_std.fill_(config.log_std_init)
         self.flat = FlatParameters([p for p in agent.parameters() if p.requires_grad])
-        try:
-            self.optimizer = torch.optim.Adam([self.flat.flat], lr=config.learning_rate, eps=config.adam_eps,
-                                              fused=True)
-        except (RuntimeError, TypeError):  # fused Adam needs a recent CPU build; the result is the same
-            self.optimizer = torch.optim.Adam([self.flat.flat], lr=config.learning_rate, eps=config.adam_eps)
+        self.optimizer = FusedAdam([self.flat.flat], lr=config.learning_rate, eps=config.adam_eps)
         self._minibatch_loss = compiled(self.loss) if config.compile_loss else self.loss
         self.recent_returns: deque[float] = deque(maxlen=100)
         self.recent_lengths: deque[int] = deque(maxlen=100)
@@ -496,8 +493,7 @@ class PPOTrainer:
         progress = self.iteration / self.num_iterations
         self.agent.set_progress(progress)
         lr = cfg.learning_rate * (1.0 - progress if cfg.lr_schedule == "linear" else 1.0)
-        for group in self.optimizer.param_groups:
-            group["lr"] = lr
+        self.optimizer.lr = lr
         return lr
 
     def observe(self, batch: Minibatch) -> None:
@@ -529,9 +525,8 @@ class PPOTrainer:
     # --- state for checkpoints and resume -----------------------------------------------------------
     def state_tensors(self) -> dict[str, torch.Tensor]:
         state = {f"agent.{k}": v.detach().clone().contiguous() for k, v in self.agent.state_dict().items()}
-        opt = self.optimizer.state_dict()["state"].get(0, {})
-        for k, v in opt.items():
-            state[f"optim.{k}"] = torch.as_tensor(v).clone().contiguous()
+        for k, v in self.optimizer.state_of(self.flat.flat).items():
+            state[f"optim.{k}"] = v.clone().contiguous()
         for k, v in self.reward_scaler.state().items():
             state[f"reward_scaler.{k}"] = v
         env_arrays, _ = self.envs.state()
@@ -576,9 +571,7 @@ class PPOTrainer:
         env_arrays = {k: v.numpy() for k, v in part("envs.").items()}
 
         self.agent.load_state_dict(complete_state(self.agent, agent_state))  # in place: flat views survive
-        sd = self.optimizer.state_dict()
-        sd["state"] = {0: opt_state}
-        self.optimizer.load_state_dict(sd)
+        self.optimizer.load_state_of(flat, opt_state)
         self.reward_scaler.load(scaler_state)
         self.iteration = progress["iteration"]
         self.global_step = progress["global_step"]

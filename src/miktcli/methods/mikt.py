@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from torch import nn
 from torch.nn import functional as F
 
+from miktcli.engine.adam import FusedAdam
 from miktcli.engine.nets import MLP, ObsNormalizer
 from miktcli.engine.policies import LOG_2PI, TEACHER_FREE, ActorCritic, GaussianActorCritic, gaussian_kl
 from miktcli.errors import MiktError
@@ -595,9 +596,9 @@ def fit_network(net: MLP, obs: torch.Tensor, target: torch.Tensor, scale: torch.
     first = best = float(error(held))
     kept = snapshot()
     with torch.enable_grad():
-        optimiser = torch.optim.Adam(live.values(), lr=lr)
+        optimiser = FusedAdam(list(live.values()), lr=lr)
         for step in range(1, steps + 1):
-            optimiser.zero_grad(set_to_none=True)
+            optimiser.zero_grad()
             error(~held).backward()
             optimiser.step()
             if step % 10 == 0 or step == steps:
