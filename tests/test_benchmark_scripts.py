@@ -296,7 +296,7 @@ def test_aggregate_report_normalises_by_random_and_the_baseline_per_target(regis
     assert "| mikt | 4 | 2 | 2.30 [" in final and "| vpg | 4 | 2 | 1.00 [" in final
     assert "| mikt vs vpg | 1.00 [1.00, 1.00] | 2 |" in final
     assert "| four → ant | 2.20 | 1.00 |" in final  # two runs: nothing trimmed
-    assert "| ant | 5.0 | 30 | 2 |" in text
+    assert "| ant | 5.0 | — | 30 | 2 |" in text  # no initial-policy returns given: shown as missing
     assert (study / "aggregate-profile.png").read_bytes()[:4] == b"\x89PNG"
 
 

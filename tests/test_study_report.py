@@ -280,7 +280,12 @@ def measured(monkeypatch):
         return {"episodes": episodes, "seed": seed, "return_mean": RANDOM[target], "return_std": 0.0,
                 "length_mean": 20.0, "returns": [RANDOM[target]] * episodes}
 
+    def initial(target, episodes, seed):  # the initial policy: shown beside R_random, 10 below it here
+        return {"episodes": episodes, "seed": seed, "return_mean": RANDOM[target] - 10, "return_std": 0.0,
+                "length_mean": 20.0, "returns": [RANDOM[target] - 10] * episodes}
+
     monkeypatch.setattr("miktcli.studies.random_cache.random_returns", measure)
+    monkeypatch.setattr("miktcli.studies.random_cache.initial_policy_returns", initial)
     return calls
 
 
@@ -315,8 +320,8 @@ def test_the_report_normalises_by_random_and_the_baseline_and_caches_the_random_
     assert "| mikt | 4 | 2 | 2.30 [" in final and "| vpg | 4 | 2 | 1.00 [" in final
     assert "| mikt vs vpg | 1.00 [1.00, 1.00] | 2 |" in final
     assert "| four → ant | 2.20 | 1.00 |" in final  # two runs: nothing trimmed
-    assert "| ant | 5.0 | 30 | 2 |" in text and "| hopper | 0.0 | 20 | 2 |" in text
-    assert "random-returns.json in this folder" in text and "Left out" not in text
+    assert "| ant | 5.0 | -5.0 | 30 | 2 |" in text and "| hopper | 0.0 | -10.0 | 20 | 2 |" in text
+    assert "random-returns.json and initial-policy-returns.json in this folder" in text and "Left out" not in text
     assert "![performance profiles](aggregate-profile.png)" in text
     assert (out / "aggregate-profile.png").read_bytes()[:4] == b"\x89PNG"
     # the same numbers in summary.json
@@ -332,12 +337,14 @@ def test_the_report_normalises_by_random_and_the_baseline_and_caches_the_random_
     # mean over training (the curves' means): ant vpg 20/3, 40/3 → R_vpg 10, so mikt's 50/3 is (50/3 − 5) / 5
     assert across["measures"]["mean over training"]["per_pair"]["four → ant"]["mikt"] == pytest.approx(3.0)
     assert [n["task"] for n in across["normalisation"]] == ["hopper", "ant"]
-    assert across["normalisation"][1] == {"task": "ant", "random": 5.0, "runs": 2,
+    assert across["normalisation"][1] == {"task": "ant", "random": 5.0, "runs": 2, "initial": -5.0,
                                           "reference": {"final return": 30.0, "mean over training": 10.0}}
     assert across["profiles"] == {"figure": "aggregate-profile.png", "measure": "final return",
                                   "methods": ["mikt", "vpg"]}
     # each target measured once, by the committed protocol, and cached with its provenance
     assert measured == [("hopper", 100, 0), ("ant", 100, 0)]
+    initial = json.loads((out / "initial-policy-returns.json").read_text())
+    assert initial["policy"].startswith("N(0, 1)") and initial["targets"]["ant"]["return_mean"] == -5.0
     cache = json.loads((out / "random-returns.json").read_text())
     assert cache["policy"] == "uniform over the action box" and set(cache["targets"]) == {"hopper", "ant"}
     assert cache["targets"]["ant"]["return_mean"] == 5.0 and cache["targets"]["ant"]["code_version"]
@@ -389,7 +396,7 @@ def test_the_section_says_why_numbers_are_missing(registry, tmp_path, measured, 
     study.report()
     text = section(out)
     assert "- no completed `vpg` run on ant yet: its pairs (four → ant) are left out" in text
-    assert "| mikt | 2 | 1 | 2.50 [" in text and "| ant | — | — | 0 |" in text  # hopper's 2 and 3
+    assert "| mikt | 2 | 1 | 2.50 [" in text and "| ant | — | — | — | 0 |" in text  # hopper's 2 and 3
     assert measured == [("hopper", 100, 0)]
     # a baseline no better than random on ant: its pair is left out of the measure, the rest reported
     monkeypatch.setitem(RANDOM, "ant", 100.0)
@@ -409,6 +416,51 @@ def test_the_section_says_why_numbers_are_missing(registry, tmp_path, measured, 
     assert (out / "random-returns.json").read_text() == "{not json"
 
 
+TEACHER_COUNTS_GRID = ('name = "counts"\nsteps = 6144\nseeds = [0, 1]\n'
+                       '[[pairs]]\nfrom = ["four"]\nto = "hopper"\n[[pairs]]\nfrom = ["four", "six"]\nto = "hopper"\n'
+                       '[[pairs]]\nfrom = ["four", "eight"]\nto = "hopper"\n'
+                       '[[methods]]\nname = "mikt"\nmethod = "mikt"\n[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+
+
+def test_one_and_two_teacher_runs_are_pooled_apart_and_compared_on_the_same_tasks(registry, tmp_path, measured):
+    from miktcli.studies.grid import load_grid
+
+    grid_file = tmp_path / "counts.toml"
+    grid_file.write_text(TEACHER_COUNTS_GRID)
+    study = Study(load_grid(grid_file), tmp_path / "out", registry)
+    # R_vpg 20 on hopper (random 0): one teacher scores 2, 3; four + six 4, 5; four + eight 3, 4
+    finals = {"->hopper|vpg|0": 10, "->hopper|vpg|1": 30, "four>hopper|mikt|0": 40, "four>hopper|mikt|1": 60,
+              "four+six>hopper|mikt|0": 80, "four+six>hopper|mikt|1": 100,
+              "four+eight>hopper|mikt|0": 60, "four+eight>hopper|mikt|1": 80}
+    for key, final in finals.items():
+        teachers = key.split(">")[0].split("+") if key[0] != "-" else []
+        method, seed = key.split("|")[1:]
+        study.state.remember(key, fake_run(registry, "hopper", method, int(seed), [0, 0, final], 1,
+                                           teachers=teachers))
+    study.report()
+    final = section(tmp_path / "out").split("### Final return")[1].split("### Mean over training")[0]
+    # two-teacher runs pooled: 3, 4, 4, 5 → IQM 4; one teacher 2, 3; vpg's runs once, not once per pair
+    assert "| mikt, 1 teacher | 2 | 1 | 2.50 [" in final and "| mikt, 2 teachers | 4 | 2 | 4.00 [" in final
+    assert "| vpg | 2 | 1 | 1.00 [" in final
+    # each two-teacher pair against four alone on hopper: 2 tasks, the intervals apart
+    assert "| mikt, 2 teachers vs mikt, 1 teacher | 2 | 4.00 [" in final
+    # P(X > Y): 1 on four + six; on four + eight 3, 4 against 2, 3 is 3.5 of 4 (a tie counts half)
+    assert "| 4.00 [3.50, 4.50] | 2.50 [2.00, 3.00] | no | 0.94 [" in final
+    matched = json.loads((tmp_path / "out" / "summary.json").read_text())["across_pairs"]["measures"][
+        "final return"]["more_teachers_vs_fewer"]
+    assert [(m["x"], m["y"], m["tasks"], m["intervals_overlap"]) for m in matched] == [
+        ("mikt, 2 teachers", "mikt, 1 teacher", 2, False)]
+
+
+def test_the_initial_policy_measurement_is_seeded_and_scores_below_the_uniform_one():
+    from miktcli.engine.random_policy import initial_policy_returns, random_returns
+
+    first = initial_policy_returns("hopper", episodes=3, seed=1)
+    assert first == initial_policy_returns("hopper", episodes=3, seed=1)
+    assert first["returns"] != random_returns("hopper", episodes=3, seed=1)["returns"]
+    assert (first["episodes"], len(first["returns"])) == (3, 3) and first["length_mean"] >= 1
+
+
 def test_the_random_policy_measurement_is_seeded_and_whole_episodes():
     from miktcli.engine.random_policy import random_returns
 
@@ -423,8 +475,8 @@ def test_a_baseline_with_teachers_scales_each_pair_by_its_own_runs(registry, tmp
     study.report()
     text = section(tmp_path / "out")
     assert "normalised on its pair" in text and "not PPO from scratch" in text
-    assert "| pair | R_random | R_mikt (final return) | n |" in text
-    assert "| four → ant | 5.0 | 60 | 2 |" in text  # mikt's 50, 70 there: vpg's 20, 40 are (20 − 5) / 55 …
+    assert "| pair | R_random (uniform) | R_initial (N(0, 1)) | R_mikt (final return) | n |" in text
+    assert "| four → ant | 5.0 | -5.0 | 60 | 2 |" in text  # mikt's 50, 70 there: vpg's 20, 40 are (20 − 5) / 55 …
     assert "| four → hopper | 1.00 | 0.40 |" in text  # … and on hopper vpg's 10, 30 over mikt's 50: IQM 0.4
 
 

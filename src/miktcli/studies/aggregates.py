@@ -18,6 +18,7 @@ import numpy as np
 
 from miktcli.methods import get_method
 from miktcli.stats import across_tasks
+from miktcli.studies.grid import Grid
 from miktcli.studies.summary import MethodSummary, StudySummary
 
 MEASURES = {"final return": "the mean training return over the last 100 episodes at the end of the run",
@@ -38,6 +39,7 @@ class Normaliser:
     random: float | None  # None: no random-policy return for the target
     reference: dict[str, float]  # measure → mean of the baseline's completed runs (absent: none)
     runs: int  # the baseline's completed runs there
+    initial: float | None = None  # the initial policy's return there (N(0, 1), unclipped), for the reader
 
 
 @dataclass(frozen=True)
@@ -58,11 +60,29 @@ class Improvement:
 
 
 @dataclass(frozen=True)
+class MatchedComparison:
+    """More teachers against fewer on the same tasks: each pair of `x` (two teachers or more) against the pair
+    of `y` that has its first teacher alone and the same target, the method and its configuration the same."""
+
+    x: str
+    y: str
+    tasks: int  # the pairs of x with a matching pair of y
+    x_iqm: across_tasks.Estimate
+    y_iqm: across_tasks.Estimate
+    improvement: across_tasks.Estimate  # P(X > Y)
+
+    @property
+    def intervals_overlap(self) -> bool:
+        return self.x_iqm.low <= self.y_iqm.high and self.y_iqm.low <= self.x_iqm.high
+
+
+@dataclass(frozen=True)
 class MeasureAggregate:
     measure: str
     methods: list[MethodAggregate]
     improvements: list[Improvement]
     per_pair: dict[str, dict[str, float]]  # pair → method → IQM of its normalised runs
+    matched: list[MatchedComparison] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -95,6 +115,30 @@ def _values(m: MethodSummary, measure: str) -> np.ndarray:
     return m.per_seed[measure]
 
 
+def _teachers(n: int) -> str:
+    return f"{n} teacher{'s' if n != 1 else ''}"
+
+
+def method_labels(grid: Grid) -> dict[tuple[str, str], str]:
+    """(pair, method) → the method's name in the section: a method with teachers that the grid runs with
+    different numbers of teachers is one entry per number ("mikt, 2 teachers"), so that pooling never mixes
+    one-teacher and two-teacher runs; every other method keeps its name."""
+    counts: dict[str, set[int]] = {}
+    for m in grid.methods:
+        if m.uses_teachers:
+            counts[m.name] = {len(p.teachers) for p in grid.pairs}
+    return {(p.name, m.name): (f"{m.name}, {_teachers(len(p.teachers))}" if len(counts.get(m.name, ())) > 1
+                               else m.name)
+            for p in grid.pairs for m in grid.methods}
+
+
+def _first_teacher_pairs(grid: Grid) -> dict[str, str]:
+    """Each pair of two teachers or more → the grid's pair with its first teacher alone and the same target."""
+    alone = {(p.teachers[0], p.to): p.name for p in grid.pairs if len(p.teachers) == 1}
+    return {p.name: alone[p.teachers[0], p.to] for p in grid.pairs
+            if len(p.teachers) > 1 and (p.teachers[0], p.to) in alone}
+
+
 def _baseline(summary: StudySummary) -> tuple[bool, dict[str, str], dict[str, MethodSummary]]:
     """Whether the baseline trains from scratch, each pair's task, and each task's baseline runs (the first
     pair of the task with completed ones)."""
@@ -125,8 +169,9 @@ def unavailable(summary: StudySummary, why: str, random_source: str = "—",
 
 
 def across_pairs(summary: StudySummary, random: Mapping[str, float], random_source: str,
-                 n_resamples: int = across_tasks.RESAMPLES) -> AcrossPairs:
-    """The section's numbers from the study's summary and each target's random-policy return."""
+                 n_resamples: int = across_tasks.RESAMPLES, initial: Mapping[str, float] | None = None) -> AcrossPairs:
+    """The section's numbers from the study's summary and each target's random-policy return (`initial`: each
+    target's initial-policy return, shown beside it)."""
     grid = summary.grid
     notes: list[str] = []
     scratch, task_of, base_runs = _baseline(summary)
@@ -145,7 +190,8 @@ def across_pairs(summary: StudySummary, random: Mapping[str, float], random_sour
             values = _values(base, measure)
             if np.isfinite(values).any():
                 reference[measure] = float(np.mean(values[np.isfinite(values)]))
-        normalisation.append(Normaliser(task, rand, reference, base.n if base else 0))
+        normalisation.append(Normaliser(task, rand, reference, base.n if base else 0,
+                                        (initial or {}).get(task_target[task])))
         pairs = ", ".join(p for p, t in task_of.items() if t == task)
         if base is None:
             notes.append(f"no completed `{grid.baseline}` run on {task} yet: its pairs ({pairs}) are left out")
@@ -169,8 +215,8 @@ def across_pairs(summary: StudySummary, random: Mapping[str, float], random_sour
     for measure in MEASURES:
         scores = _normalised(summary, measure, scale, task_of, notes)
         if scores:
-            scores_of[measure] = scores
-            measures.append(_measure(summary, measure, scores, n_resamples))
+            scores_of[measure] = _pooled(scores, grid.baseline, task_of if scratch else None)
+            measures.append(_measure(summary, measure, scores, n_resamples, task_of if scratch else None))
     section = AcrossPairs(grid.baseline, grid.steps, [p.name for p in grid.pairs], scratch, random_source,
                           n_resamples, None, notes, normalisation, measures)
     if not measures:
@@ -183,27 +229,42 @@ def across_pairs(summary: StudySummary, random: Mapping[str, float], random_sour
 def _normalised(summary: StudySummary, measure: str, scale: dict[tuple[str, str], tuple[float, float]],
                 task_of: dict[str, str], notes: list[str]) -> Scores:
     scores: Scores = {}
+    labels = method_labels(summary.grid)
     for pair in summary.pairs:
         if (measure, task_of[pair.name]) not in scale:
             continue
         rand, ref = scale[measure, task_of[pair.name]]
         for m in pair.with_runs:
+            name = labels[pair.name, m.name]
             values = _values(m, measure)
             finite = values[np.isfinite(values)]
             if len(finite) < len(values):
                 notes.append(f"{pair.name}, {m.name}: {len(values) - len(finite)} run(s) without a {measure} "
                              "(no episode finished) left out")
             if len(finite):
-                scores.setdefault(m.name, {})[pair.name] = across_tasks.normalized(finite, rand, ref)
-    order = [m.name for m in summary.grid.methods]  # grid order, whichever pair a method first ran on
-    return {name: scores[name] for name in order if name in scores}
+                scores.setdefault(name, {})[pair.name] = across_tasks.normalized(finite, rand, ref)
+    order = dict.fromkeys(labels[p.name, m.name] for m in summary.grid.methods for p in summary.grid.pairs)
+    return {name: scores[name] for name in order if name in scores}  # grid order, whichever pair ran it first
 
 
-def _measure(summary: StudySummary, measure: str, scores: Scores, n_resamples: int) -> MeasureAggregate:
+def _pooled(scores: Scores, baseline: str, task_of: dict[str, str] | None) -> Scores:
+    """The scores an IQM, a mean or a profile pools: a baseline from scratch has one set of runs per target,
+    shared by the target's pairs, so it enters once per target, not once per pair."""
+    if task_of is None or baseline not in scores:
+        return scores
+    once: dict[str, np.ndarray] = {}
+    for pair, values in scores[baseline].items():
+        once.setdefault(task_of[pair], values)  # the same runs on each pair of the task: its first pair's
+    return {**scores, baseline: once}
+
+
+def _measure(summary: StudySummary, measure: str, scores: Scores, n_resamples: int,
+             task_of: dict[str, str] | None) -> MeasureAggregate:
+    pooled = _pooled(scores, summary.grid.baseline, task_of)
     methods = [MethodAggregate(name, sum(len(v) for v in by_pair.values()), len(by_pair),
                                across_tasks.iqm_estimate(by_pair, n_resamples=n_resamples, seed=SEED),
                                across_tasks.mean_estimate(by_pair, n_resamples=n_resamples, seed=SEED))
-               for name, by_pair in scores.items()]
+               for name, by_pair in pooled.items()]
     names, improvements = list(scores), []
     for i, x in enumerate(names):
         for y in names[i + 1:]:
@@ -214,7 +275,27 @@ def _measure(summary: StudySummary, measure: str, scores: Scores, n_resamples: i
                 improvements.append(Improvement(x, y, estimate, len(shared)))
     per_pair = {pair.name: {m: across_tasks.iqm({pair.name: scores[m][pair.name]})
                             for m in names if pair.name in scores[m]} for pair in summary.pairs}
-    return MeasureAggregate(measure, methods, improvements, per_pair)
+    return MeasureAggregate(measure, methods, improvements, per_pair, _matched(summary.grid, scores, n_resamples))
+
+
+def _matched(grid: Grid, scores: Scores, n_resamples: int) -> list[MatchedComparison]:
+    """Each method with teachers, its pairs of several teachers against their first teacher alone (the same
+    target, method and configuration), the tasks being the several-teacher pairs."""
+    labels, alone_of = method_labels(grid), _first_teacher_pairs(grid)
+    compared = []
+    for m in grid.methods:
+        by_count: dict[tuple[str, str], tuple[dict, dict]] = {}
+        for pair, alone in alone_of.items():
+            x, y = labels[pair, m.name], labels[alone, m.name]
+            if x != y and pair in scores.get(x, {}) and alone in scores.get(y, {}):
+                xs, ys = by_count.setdefault((x, y), ({}, {}))
+                xs[pair], ys[pair] = scores[x][pair], scores[y][alone]
+        for (x, y), (xs, ys) in by_count.items():
+            compared.append(MatchedComparison(
+                x, y, len(xs), across_tasks.iqm_estimate(xs, n_resamples=n_resamples, seed=SEED),
+                across_tasks.iqm_estimate(ys, n_resamples=n_resamples, seed=SEED),
+                across_tasks.probability_of_improvement_estimate(xs, ys, n_resamples=n_resamples, seed=SEED)))
+    return compared
 
 
 def _profiles(scores: Scores) -> list[Profile]:

@@ -39,7 +39,10 @@ def across_pairs_json(a: AcrossPairs) -> dict[str, Any]:
     data = dataclasses.asdict(a)
     data["measures"] = {m["measure"]: {
         "methods": {x.pop("name"): x for x in m["methods"]},
-        "probability_of_improvement": m["improvements"], "per_pair": m["per_pair"]} for m in data["measures"]}
+        "probability_of_improvement": m["improvements"], "per_pair": m["per_pair"],
+        "more_teachers_vs_fewer": [{**c, "intervals_overlap": matched.intervals_overlap}
+                                   for c, matched in zip(m.pop("matched"), measure.matched, strict=True)]}
+        for m, measure in zip(data["measures"], a.measures, strict=True)}
     data["profiles"] = ({"figure": PROFILE_FIGURE, "measure": PROFILE_MEASURE, "methods": [p.name for p in a.profiles]}
                         if a.profiles else None)
     return data

@@ -150,6 +150,15 @@ def _measure_lines(m: MeasureAggregate, baseline: str, pairs: list[str]) -> list
     if m.improvements:
         lines += ["", "| X vs Y | P(X > Y) [95 % CI] | pairs |", "|---|---|---|"]
         lines += [f"| {i.x} vs {i.y} | {_estimate(i.estimate)} | {i.pairs} |" for i in m.improvements]
+    if m.matched:
+        lines += ["", "More teachers against fewer on the same tasks: each pair with several teachers against its "
+                  "first teacher alone on the same target (the same method and configuration); IQM over those "
+                  "tasks, 95 % stratified bootstrap intervals.", "",
+                  "| X vs Y | tasks | IQM of X [95 % CI] | IQM of Y [95 % CI] | intervals overlap "
+                  "| P(X > Y) [95 % CI] |",
+                  "|---|---|---|---|---|---|"]
+        lines += [f"| {c.x} vs {c.y} | {c.tasks} | {_estimate(c.x_iqm)} | {_estimate(c.y_iqm)} | "
+                  f"{'yes' if c.intervals_overlap else 'no'} | {_estimate(c.improvement)} |" for c in m.matched]
     names = [a.name for a in m.methods]
     lines += ["", "Per pair (IQM of its runs, normalised):", "",
               "| pair | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
@@ -167,7 +176,8 @@ def across_pairs_lines(a: AcrossPairs) -> list[str]:
     if a.missing:
         return [*lines, f"No aggregates across pairs: {a.missing}.", *_note_lines(a.notes), ""]
     task = "target" if a.baseline_from_scratch else "pair"
-    shared = (f" `{base}` has the same runs on every pair of its target." if a.baseline_from_scratch else
+    shared = (f" `{base}` has the same runs on every pair of its target, so its IQM and mean count them once, "
+              "per target." if a.baseline_from_scratch else
               f" `{base}` trains with teachers, so each pair has its own scale, and 1 is that method, not PPO from "
               "scratch.")
     scratch = " (PPO from scratch)" if a.baseline_from_scratch else ""
@@ -180,11 +190,16 @@ def across_pairs_lines(a: AcrossPairs) -> list[str]:
               "probability of improvement: per pair the Mann–Whitney U / (n_x n_y), averaged over pairs "
               f"(Agarwal et al. 2021). Random-policy returns: {a.random_source}.", "",
               *_note_lines(a.notes),
-              "### Normalisation", "", f"| {task} | R_random | R_{base} (final return) | n |", "|---|---|---|---|"]
+              "### Normalisation", "",
+              "R_random, the zero, is the uniform policy over the action box. R_initial is the policy PPO starts "
+              "from (N(0, 1) on every action dimension, unclipped), shown for the reader: it is not a scale.", "",
+              f"| {task} | R_random (uniform) | R_initial (N(0, 1)) | R_{base} (final return) | n |",
+              "|---|---|---|---|---|"]
     for n in a.normalisation:
         rand = "—" if n.random is None else f"{n.random:,.1f}"
+        initial = "—" if n.initial is None else f"{n.initial:,.1f}"
         ref = n.reference.get("final return")
-        lines.append(f"| {n.task} | {rand} | {'—' if ref is None else f'{ref:,.0f}'} | {n.runs} |")
+        lines.append(f"| {n.task} | {rand} | {initial} | {'—' if ref is None else f'{ref:,.0f}'} | {n.runs} |")
     lines.append("")
     for m in a.measures:
         lines += _measure_lines(m, base, a.pairs)

@@ -18,6 +18,7 @@ into the study folder as it renders. A new section is a function and one `regist
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from miktcli.errors import MiktError, describe_validation_error
 from miktcli.studies.aggregates import AcrossPairs, across_pairs, baseline_targets, unavailable
 from miktcli.studies.grid import Grid, ReportRequest
-from miktcli.studies.random_cache import CACHE_FILE, study_random_returns
+from miktcli.studies.random_cache import CACHE_FILE, INITIAL_CACHE_FILE, study_random_returns
 from miktcli.studies.reference import load_reference
 from miktcli.studies.render_figures import write_profiles
 from miktcli.studies.render_json import across_pairs_json
@@ -130,7 +131,13 @@ def study_across_pairs(summary: StudySummary, out_dir: Path) -> AcrossPairs:
         random = study_random_returns(out_dir, targets, summary.grid.name)
     except MiktError as err:  # a damaged cache, or a target that cannot be made: said in the section
         return unavailable(summary, f"no random-policy returns: {err}", CACHE_FILE)
-    return across_pairs(summary, random, f"{CACHE_FILE} in this folder")
+    try:  # shown beside R_random, not a scale: without it the numbers stand, and the section says why it is gone
+        initial, missing = study_random_returns(out_dir, targets, summary.grid.name, baseline="initial"), None
+    except MiktError as err:
+        initial, missing = None, f"the initial policy's returns: {err}"
+    numbers = across_pairs(summary, random, f"{CACHE_FILE} and {INITIAL_CACHE_FILE} in this folder",
+                           initial=initial)
+    return dataclasses.replace(numbers, notes=[*numbers.notes, missing]) if missing else numbers
 
 
 def _across_pairs(given: SectionInput) -> Rendered:
