@@ -123,12 +123,8 @@ def method_labels(grid: Grid) -> dict[tuple[str, str], str]:
     """(pair, method) → the method's name in the section: a method with teachers that the grid runs with
     different numbers of teachers is one entry per number ("mikt, 2 teachers"), so that pooling never mixes
     one-teacher and two-teacher runs; every other method keeps its name."""
-    counts: dict[str, set[int]] = {}
-    for m in grid.methods:
-        if m.uses_teachers:
-            counts[m.name] = {len(p.teachers) for p in grid.pairs}
-    return {(p.name, m.name): (f"{m.name}, {_teachers(len(p.teachers))}" if len(counts.get(m.name, ())) > 1
-                               else m.name)
+    mixed = len({len(p.teachers) for p in grid.pairs}) > 1  # every method with teachers runs on every pair
+    return {(p.name, m.name): (f"{m.name}, {_teachers(len(p.teachers))}" if mixed and m.uses_teachers else m.name)
             for p in grid.pairs for m in grid.methods}
 
 
@@ -216,7 +212,7 @@ def across_pairs(summary: StudySummary, random: Mapping[str, float], random_sour
         scores = _normalised(summary, measure, scale, task_of, notes)
         if scores:
             scores_of[measure] = _pooled(scores, grid.baseline, task_of if scratch else None)
-            measures.append(_measure(summary, measure, scores, n_resamples, task_of if scratch else None))
+            measures.append(_measure(summary, measure, scores, scores_of[measure], n_resamples))
     section = AcrossPairs(grid.baseline, grid.steps, [p.name for p in grid.pairs], scratch, random_source,
                           n_resamples, None, notes, normalisation, measures)
     if not measures:
@@ -258,9 +254,9 @@ def _pooled(scores: Scores, baseline: str, task_of: dict[str, str] | None) -> Sc
     return {**scores, baseline: once}
 
 
-def _measure(summary: StudySummary, measure: str, scores: Scores, n_resamples: int,
-             task_of: dict[str, str] | None) -> MeasureAggregate:
-    pooled = _pooled(scores, summary.grid.baseline, task_of)
+def _measure(summary: StudySummary, measure: str, scores: Scores, pooled: Scores,
+             n_resamples: int) -> MeasureAggregate:
+    """`scores` by pair (the per-pair comparisons), `pooled` as the IQMs and means count runs (_pooled)."""
     methods = [MethodAggregate(name, sum(len(v) for v in by_pair.values()), len(by_pair),
                                across_tasks.iqm_estimate(by_pair, n_resamples=n_resamples, seed=SEED),
                                across_tasks.mean_estimate(by_pair, n_resamples=n_resamples, seed=SEED))
