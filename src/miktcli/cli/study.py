@@ -5,12 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
-from rich.live import Live
 from typer.core import TyperGroup
 
 from miktcli.cli.common import DEFAULT_REGISTRY, RegistryOption, command_line, setup_torch
 from miktcli.cli.console import err, print_data, print_error
-from miktcli.cli.study_progress import PlainProgress, cell_line, pin_lines, progress_table
+from miktcli.cli.study_progress import StudyDisplay
 from miktcli.errors import MiktError
 
 HELP = """Run a study grid (pairs × methods × seeds), resumably, and write results.md with plots.
@@ -73,31 +72,15 @@ def study(
         _show_report(st.report_finished(shown_as))
         return
     on_ray = workers is not None or address is not None
-    live = Live(console=err, refresh_per_second=2) if on_ray and err.is_terminal else None
-    plain = PlainProgress(0)
-
-    def prepared(cells) -> None:
-        for line in pin_lines(st):
-            err.print(line)
-        plain.finished_before = sum(run.card.status == "completed" for _, run in cells)
-        if live:
-            live.start()
-
-    def progress(cells) -> None:  # the Ray table: live on a terminal, else a line per change
-        live.update(progress_table(cells, plain.finished_before)) if live else plain(cells)
-
+    display = StudyDisplay(st, on_ray)
     driver = Driver(st, _executor(registry, workers, address, grid.eval_episodes, chunk_iterations), command_line(),
-                    retrain_missing=retrain_missing, on_prepared=prepared, on_progress=progress if on_ray else None)
-    done, total = 0, len(st.distinct_cells())
+                    retrain_missing=retrain_missing, on_prepared=display.prepared,
+                    on_progress=display.progress if on_ray else None)
     try:
         for event in driver.events():
-            done += event.state in ("done", "completed")
-            line = f"{event.key}: {event.run_id} {event.state}" if on_ray else cell_line(event, done, total)
-            if line and not live:
-                err.print(line)
+            display.event(event)
     finally:
-        if live:
-            live.stop()
+        display.close()
     _show_report(driver.report)
     for event in driver.failed:
         print_error(f"{event.key}: {event.run_id} failed: {event.error}")

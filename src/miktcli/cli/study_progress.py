@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING
 
+from rich.live import Live
 from rich.table import Table
 
 from miktcli.cli.console import err
@@ -86,3 +87,39 @@ def pin_lines(study) -> list[str]:
     pins = study.teacher_pins
     return [f"study: `{ref}` pinned to {pin.ref} ({pins.path.name}); a later version of "
             f"{ref.split('@')[0]} does not change this study" for ref, pin in pins.new if "@v" not in ref]
+
+
+class StudyDisplay:
+    """All `mikt study` shows while it runs, fed by the driver: the pins once the cells are prepared, then on Ray
+    the progress table (live on a terminal, else `PlainProgress`) and a line per finished task, or serially a
+    line per cell (`cell_line`)."""
+
+    def __init__(self, study, on_ray: bool):
+        self.study, self.on_ray = study, on_ray
+        self.live = Live(console=err, refresh_per_second=2) if on_ray and err.is_terminal else None
+        self.plain = PlainProgress(0)
+        self.done, self.total = 0, len(study.distinct_cells())
+
+    def prepared(self, cells) -> None:
+        for line in pin_lines(self.study):
+            err.print(line)
+        self.plain.finished_before = sum(run.card.status == "completed" for _, run in cells)
+        if self.live:
+            self.live.start()
+
+    def progress(self, cells: list[CellEvent]) -> None:
+        if self.live:
+            self.live.update(progress_table(cells, self.plain.finished_before))
+        else:
+            self.plain(cells)
+
+    def event(self, event: CellEvent) -> None:
+        self.done += event.state in ("done", "completed")
+        line = (f"{event.key}: {event.run_id} {event.state}" if self.on_ray
+                else cell_line(event, self.done, self.total))
+        if line and not self.live:
+            err.print(line)
+
+    def close(self) -> None:
+        if self.live:
+            self.live.stop()

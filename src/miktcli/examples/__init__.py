@@ -1,5 +1,5 @@
 """Example study grids that ship inside the package (`grids/*.toml`), so `mikt study run --example NAME` works
-from an installed wheel, where the repository's `benchmarks/grids/` is absent.
+from an installed wheel, where the repository's own grids are absent.
 
 An example names only packaged teachers and shipped environments, and no file relative to itself (a reference
 result), so it runs from any folder; tests/test_study_examples.py checks both. Its first line, a `# ` comment,
