@@ -1,4 +1,5 @@
 import os
+import shutil
 
 import pytest
 import torch
@@ -47,12 +48,24 @@ def specs(tmp_path, monkeypatch):
     return folder
 
 
-@pytest.fixture()
-def teacher(registry):
-    """A one-iteration hopper teacher published as tiny@v1; its file."""
+@pytest.fixture(scope="session")
+def tiny_teacher_registry(tmp_path_factory):
+    """What `mikt teacher train hopper --steps 2048 --name tiny` leaves in an empty registry, trained once per
+    test process: for many tests, training a teacher to transfer from was most of their time."""
     from helpers import mikt
 
-    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+    registry = tmp_path_factory.mktemp("tiny-teacher") / "registry"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MIKT_REGISTRY", str(registry))
+        mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+    return registry
+
+
+@pytest.fixture()
+def teacher(registry, tiny_teacher_registry):
+    """The test's registry as `mikt teacher train hopper --steps 2048 --name tiny` leaves it (a copy of one
+    trained once): the teacher tiny@v1, trained by run1. Its file."""
+    shutil.copytree(tiny_teacher_registry, registry, dirs_exist_ok=True)
     return registry / "teachers" / "tiny" / "v1.safetensors"
 
 

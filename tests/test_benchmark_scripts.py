@@ -192,6 +192,7 @@ def test_snapshots_restore_into_a_fresh_registry_so_the_study_skips_finished_cel
 
 
 
+@pytest.mark.slow
 def test_an_in_flight_snapshot_carries_an_unfinished_run_to_another_machine(registry, tmp_path, monkeypatch,
                                                                             ctrl_c_at_second_update):
     from typer.testing import CliRunner
@@ -241,6 +242,7 @@ def test_every_committed_grid_loads():
         load_grid(path)
 
 
+@pytest.mark.slow
 def test_throughput_quick_run_writes_its_tables_and_figures(tmp_path):
     pytest.importorskip("stable_baselines3", reason="the SB3 side needs pip install -e '.[bench]'")
     throughput = load_script("throughput")

@@ -44,6 +44,7 @@ def evaluated(target):
     return json.loads(mikt("eval", target, *EVAL).stdout)
 
 
+@pytest.mark.slow
 def test_runs_and_teachers_on_an_added_robot_are_evaluated_and_teach_from_another_folder(
         my_hopper, registry, elsewhere):
     mikt("teacher", "train", "my-hopper", "--steps", 2048, "--name", "t")  # run1, t@v1
@@ -87,6 +88,7 @@ def test_without_a_copy_the_error_says_where_it_looked(my_hopper, registry, else
     assert "unknown environment 'my-hopper'" in out
 
 
+@pytest.mark.slow
 def test_an_interrupted_run_resumes_and_branches_from_another_folder(my_hopper, registry, elsewhere,
                                                                      ctrl_c_at_second_update):
     mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "h")

@@ -39,6 +39,7 @@ def test_bad_teacher_reference(registry):
     assert "unknown run 'run9'" in mikt("inspect", "run9", code=1).output
 
 
+@pytest.mark.slow
 def test_end_to_end_teacher_transfer_inspect_eval(registry, tmp_path):
     r = mikt("teacher", "train", "centipede-four", "--steps", 2048)
     assert r.stdout.strip() == "centipede-four@v1"
@@ -104,8 +105,7 @@ def test_end_to_end_teacher_transfer_inspect_eval(registry, tmp_path):
          "student-weight-ramp"],
 )
 def test_methods_and_ablations_are_recorded_and_change_what_is_trained(
-        registry, args, card, metrics_present, metrics_absent):
-    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+        registry, args, card, metrics_present, metrics_absent, teacher):
     if "tiny@v2" in args:  # a second, different teacher (the same one twice is refused)
         mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny", "--seed", 1)
     r = mikt("transfer", *args, "--to", "centipede-four", "--steps", 2048, "--eval-episodes", 1, "--json")
@@ -121,6 +121,7 @@ def test_methods_and_ablations_are_recorded_and_change_what_is_trained(
     assert config["ppo"]["clip_actions_for_env"] is False
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mixing", ["per-teacher", "shared"])
 def test_inspect_coupling_shows_and_plots_every_teachers_weight(registry, tmp_path, mixing):
     mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "hop")
@@ -153,6 +154,7 @@ def test_ctrl_c_keeps_the_last_checkpoint_and_resumes(registry, ctrl_c_at_second
     assert [m["iteration"] for m in metrics] == [1, 2, 3]
 
 
+@pytest.mark.slow
 def test_the_card_records_which_code_trained_which_steps(registry, ctrl_c_at_second_update, monkeypatch):
     from miktcli.registry.cards import code_version
     from miktcli.registry.runs import open_run
@@ -241,8 +243,7 @@ def test_shell_completion_is_on(monkeypatch):
     assert "_mikt_completion" in mikt("--show-completion", "bash").stdout
 
 
-def test_eval_reports_how_far_and_how_fast_the_body_moved(registry):
-    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+def test_eval_reports_how_far_and_how_fast_the_body_moved(registry, teacher):
     out = json.loads(mikt("eval", "tiny", "--episodes", 2, "--json").stdout)
     assert {"distance_mean", "distance_std", "speed_mean"} <= out.keys()
     assert "forward" in mikt("eval", "tiny", "--episodes", 1).stdout

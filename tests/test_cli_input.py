@@ -165,8 +165,7 @@ def test_seeds_outside_0_to_2_32_are_usage_errors(registry, args):
     mikt(*args, code=2)
 
 
-def test_an_infinite_coefficient_is_refused(registry):
-    mikt("teacher", "train", "hopper", *TINY, "--name", "tiny")
+def test_an_infinite_coefficient_is_refused(registry, teacher):
     r = mikt("transfer", "--from", "tiny", "--to", "hopper", "--mi-coef", "inf", *TINY, code=1)
     assert "mi_coef" in r.output and "finite" in r.output
     r = mikt("transfer", "--to", "hopper", "--method", "vpg", "--kl-coef", "inf", *TINY, code=1)
@@ -203,17 +202,15 @@ def test_an_unwritable_video_path_is_refused_before_the_episodes(two_vpg_runs, r
         locked.chmod(0o700)
 
 
-def test_a_mikt_run_without_metrics_has_no_weights_yet(registry):
+def test_a_mikt_run_without_metrics_has_no_weights_yet(registry, teacher):
     from miktcli.workflows.transfer import start_transfer
 
-    mikt("teacher", "train", "hopper", *TINY, "--name", "tiny")
     run = start_transfer(registry, to="hopper", method="mikt", teacher_refs=["tiny"], steps=2048, seed=0,
                          command="test")
     assert "no mixing weights yet" in mikt("inspect", run.id, "--coupling", code=1).output
 
 
-def test_options_of_another_method_are_refused_not_ignored(registry, tmp_path):
-    mikt("teacher", "train", "hopper", *TINY, "--name", "tiny")
+def test_options_of_another_method_are_refused_not_ignored(registry, tmp_path, teacher):
     r = mikt("transfer", "--method", "mlpp", "--from", "tiny", "--to", "hopper", "--no-mi", *TINY, code=2)
     assert "'--mi'" in r.output and "does not apply to --method mlpp" in r.output
     r = mikt("transfer", "--from", "tiny", "--from", "tiny@v1", "--to", "hopper", *TINY, code=1)
@@ -225,11 +222,10 @@ def test_options_of_another_method_are_refused_not_ignored(registry, tmp_path):
     assert [p.name for p in (registry / "runs").iterdir()] == ["run1"]  # the teacher's run only
 
 
-def test_an_empty_or_reversed_coupling_ramp_is_refused(registry):
+def test_an_empty_or_reversed_coupling_ramp_is_refused(registry, teacher):
     from miktcli.errors import MiktError
     from miktcli.workflows.transfer import start_transfer
 
-    mikt("teacher", "train", "hopper", *TINY, "--name", "tiny")
     for ramp in ({"ramp_start": 0.5, "drop_teacher_at": 0.5}, {"ramp_start": 0.9, "drop_teacher_at": 0.2},
                  {"drop_teacher_at": 1.5}):
         with pytest.raises(MiktError, match="bad mikt option"):
@@ -241,8 +237,7 @@ def test_a_name_with_a_trailing_newline_is_refused(registry):
     assert "invalid teacher name" in mikt("teacher", "train", "hopper", *TINY, "--name", "nl\n", code=1).output
 
 
-def test_teacher_list_names_files_stored_under_another_name(registry):
-    mikt("teacher", "train", "hopper", *TINY, "--name", "tiny")
+def test_teacher_list_names_files_stored_under_another_name(registry, teacher):
     copy = registry / "teachers" / "copy" / "v7.safetensors"
     copy.parent.mkdir()
     shutil.copy(registry / "teachers" / "tiny" / "v1.safetensors", copy)

@@ -33,6 +33,7 @@ def loss_and_grad(trainer: PPOTrainer, mb, old_log_std):
     return loss.detach(), {k: v.detach() for k, v in logs.items()}, trainer.flat.flat.grad.clone()
 
 
+@pytest.mark.slow
 @needs_compiler
 def test_compiled_loss_equals_the_eager_loss_and_gradient_and_does_not_recompile_along_the_ramp():
     eager, fast = mikt_trainer(False), mikt_trainer(True)
@@ -66,6 +67,7 @@ def test_a_failed_compile_is_an_error_naming_the_option(monkeypatch):
         next(trainer.run())
 
 
+@pytest.mark.slow
 @needs_compiler
 def test_past_the_recompile_limit_is_an_error_not_a_silent_eager_fallback(monkeypatch):
     def vpg_trainer(env: str, obs_dim: int, act_dim: int) -> PPOTrainer:

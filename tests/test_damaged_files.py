@@ -9,7 +9,7 @@ import pytest
 import torch
 from safetensors.torch import load as st_load
 
-from helpers import TINY, interrupted, mikt, rewrite_teacher, runs
+from helpers import interrupted, mikt, rewrite_teacher, runs
 from miktcli.registry.runs import open_run
 
 # well-formed but wrong files ----------------------------------------------------------------------------------------
@@ -107,8 +107,7 @@ def test_runs_lists_a_run_whose_results_are_null(two_vpg_runs, registry):
     assert "run1" in mikt("runs").output
 
 
-def test_a_teacher_with_nan_weights_is_refused(registry):
-    mikt("teacher", "train", "hopper", *TINY, "--name", "tiny")
+def test_a_teacher_with_nan_weights_is_refused(registry, teacher):
     path = registry / "teachers" / "tiny" / "v1.safetensors"
     from safetensors.torch import load as st_load
 

@@ -18,6 +18,7 @@ def mp4_frames(path) -> tuple[int, float]:
         reader.close()
 
 
+@pytest.mark.slow
 def test_a_video_holds_every_episode_back_to_back_in_real_time(teacher, tmp_path):
     video = tmp_path / "v.mp4"
     r = mikt("eval", "tiny", "--episodes", 2, "--video", video, "--json")

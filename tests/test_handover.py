@@ -214,9 +214,9 @@ def test_the_options_name_what_they_need():
 SHORT_SCHEDULE = ("--steps", 10240, "--ramp-start", 0.2, "--drop-teacher-at", 0.5, "--eval-episodes", 2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("handover", ["drop", "fold", "fold-fit"])
-def test_a_run_records_both_sides_of_the_hand_over_and_keeps_the_checkpoint_before_it(registry, handover):
-    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+def test_a_run_records_both_sides_of_the_hand_over_and_keeps_the_checkpoint_before_it(registry, handover, teacher):
     result = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE,
                              "--handover", handover, "--json").stdout)
     record = result["handover"]
@@ -233,8 +233,8 @@ def test_a_run_records_both_sides_of_the_hand_over_and_keeps_the_checkpoint_befo
     assert kept == ["checkpoint-before-ramp.safetensors", "checkpoint-before-teacher-free.safetensors"]
 
 
-def test_a_branch_starts_from_the_kept_checkpoint_and_hands_over_its_own_way(registry):
-    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+@pytest.mark.slow
+def test_a_branch_starts_from_the_kept_checkpoint_and_hands_over_its_own_way(registry, teacher):
     source = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE, "--json").stdout)
     branch = json.loads(mikt("transfer", "--branch", source["run"], "--at", "before-teacher-free",
                              "--handover", "fold", "--json").stdout)
@@ -252,8 +252,8 @@ def test_a_branch_starts_from_the_kept_checkpoint_and_hands_over_its_own_way(reg
     assert rows[:3] == source_rows[:3]
 
 
-def test_a_branch_refuses_what_it_cannot_do_before_a_run_exists(registry):
-    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+@pytest.mark.slow
+def test_a_branch_refuses_what_it_cannot_do_before_a_run_exists(registry, teacher):
     source = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE, "--json").stdout)["run"]
     runs_before = sorted(p.name for p in (registry / "runs").iterdir())
     out = mikt("transfer", "--branch", source, "--at", "before-nothing", code=1).output

@@ -15,6 +15,7 @@ from helpers import FIXTURE, cleanrl_agent, fixture_with, mikt, runner, sb3_acti
 from miktcli.cli.app import app
 
 
+@pytest.mark.slow
 def test_an_sb3_zip_imports_evaluates_and_transfers(registry, tmp_path):
     stats = tmp_path / "stats.json"
     stats.write_text(json.dumps({"mean": [0.0] * 11, "var": [1.0] * 11}))

@@ -38,6 +38,7 @@ def zip_bomb(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_a_member_inflating_to_gigabytes_is_refused_within_bounded_memory(zip_bomb, tmp_path):
     # in a child process, to measure its peak memory: the member is refused from its declared size
     script = textwrap.dedent(f"""

@@ -73,6 +73,7 @@ def test_teacher_resume_refuses_an_environment_argument(registry):
 
 # resume is exact ----------------------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("env", ["hopper", "centipede-four"])
 def test_a_resumed_run_ends_exactly_like_an_uninterrupted_one(registry, ctrl_c_at_second_update, env):
     from miktcli.registry.runs import open_run

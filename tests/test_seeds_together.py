@@ -135,14 +135,14 @@ def test_a_seed_left_behind_catches_up_alone_then_trains_with_the_others(registr
         assert [json.loads(r)["iteration"] for r in rows] == [1, 2, 3, 4]
 
 
-def test_a_study_with_seeds_together_trains_each_cell_s_seeds_in_one_group(registry, tmp_path):
+@pytest.mark.slow
+def test_a_study_with_seeds_together_trains_each_cell_s_seeds_in_one_group(registry, tmp_path, teacher):
     from pathlib import Path
 
     grid = (Path(__file__).resolve().parents[1] / "benchmarks" / "grids" / "tiny.toml").read_text()
     assert "seeds = [0, 1]" in grid
     path = tmp_path / "grid.toml"
     path.write_text("seeds_together = true\n" + grid)
-    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
     out = tmp_path / "results"
     done = mikt("study", path, "--out", out)
     state = json.loads((out / "state.json").read_text())

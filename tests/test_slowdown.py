@@ -31,6 +31,7 @@ def test_the_threshold_is_twice_the_phase_s_lowest_rolling_median(factor):
     assert any(records) == (factor >= 2.0)
 
 
+@pytest.mark.slow
 def test_a_run_that_slows_says_so_in_its_card(registry, monkeypatch):
     import json
     import time

@@ -35,6 +35,7 @@ def test_a_teacher_is_not_evaluated_on_an_edited_spec(my_hopper, registry):
     assert "environment 'my-hopper' changed since it was trained (ctrl_cost_weight: 0.001 then, 500.0 now)" in out
 
 
+@pytest.mark.slow
 def test_a_run_records_its_spec_and_is_neither_resumed_nor_evaluated_after_an_edit(
         my_hopper, registry, ctrl_c_at_second_update):
     mikt("transfer", "--to", "my-hopper", "--method", "vpg", "--steps", 6144, "--eval-episodes", 1, code=1)
@@ -56,6 +57,7 @@ def test_an_edited_model_file_counts_as_a_change(my_hopper, registry, ctrl_c_at_
     assert "changed since it started" in mikt("transfer", "--resume", "run1", code=1).output
 
 
+@pytest.mark.slow
 def test_a_study_refuses_to_mix_cells_trained_before_and_after_an_edit(my_hopper, registry, tmp_path):
     grid = tmp_path / "g.toml"
     grid.write_text('name = "g"\nsteps = 2048\nseeds = [0]\neval_episodes = 1\nbaseline = "vpg"\n'

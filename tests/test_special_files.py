@@ -61,8 +61,8 @@ def test_a_device_as_metrics_is_refused_not_read_to_the_end(finished_run, regist
     assert result.returncode == 1 and "a device, not a regular file" in result.stderr
 
 
-def test_a_fifo_as_a_teacher_file_or_spec_or_grid_is_refused(registry, tmp_path):
-    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+@pytest.mark.slow
+def test_a_fifo_as_a_teacher_file_or_spec_or_grid_is_refused(registry, tmp_path, teacher):
     teacher = registry / "teachers" / "tiny" / "v1.safetensors"
     teacher.unlink()
     os.mkfifo(teacher)

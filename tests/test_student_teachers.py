@@ -2,11 +2,13 @@
 
 import json
 
+import pytest
+
 from helpers import mikt
 
 
-def test_a_student_is_added_as_a_teacher_and_teaches_the_next_body(registry):
-    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+@pytest.mark.slow
+def test_a_student_is_added_as_a_teacher_and_teaches_the_next_body(registry, teacher):
     first = json.loads(mikt("transfer", "--from", "tiny", "--to", "centipede-four", "--steps", 2048,
                             "--eval-episodes", 1, "--json").stdout)["run"]
     out = mikt("teacher", "add", first, "--name", "four-from-hopper")
@@ -22,8 +24,7 @@ def test_a_student_is_added_as_a_teacher_and_teaches_the_next_body(registry):
     assert json.loads(mikt("eval", "four-from-hopper", "--episodes", 1, "--json").stdout)["episodes"] == 1
 
 
-def test_only_a_completed_transfer_has_a_student_to_add(registry, ctrl_c_at_second_update):
-    mikt("teacher", "train", "hopper", "--steps", 2048, "--name", "tiny")
+def test_only_a_completed_transfer_has_a_student_to_add(registry, ctrl_c_at_second_update, teacher):
     teacher_run = json.loads(mikt("runs", "--json").stdout)[0]["run_id"]
     assert "is a teacher run: its teacher is published already (tiny@v1)" in mikt(
         "teacher", "add", teacher_run, "--name", "x", code=1).output

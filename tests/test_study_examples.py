@@ -57,6 +57,7 @@ def test_the_four_to_eight_example_is_the_benchmark_grid():
     assert shipped == tomllib.loads((ROOT / "benchmarks" / "grids" / "four-to-eight.toml").read_text())
 
 
+@pytest.mark.slow
 def test_the_tiny_example_runs_from_an_empty_folder(empty_folder):
     r = mikt("study", "--example", "tiny")
     assert r.stdout.strip() == "studies/tiny/results.md"

@@ -25,6 +25,7 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 needs_ray = pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="ray is not installed")
 
 
+@pytest.mark.slow
 def test_study_runs_resumes_and_reports(registry, tmp_path):
     assert runner.invoke(app, ["teacher", "train", "hopper", "--steps", "2048", "--name", "tiny"]).exit_code == 0
     out = tmp_path / "results"
@@ -267,6 +268,7 @@ def failing_grid(tmp_path, steps=2048):
     return vpg_grid(tmp_path, steps, seeds=(0, 1, 2), extra="eval_episodes = 1\n")
 
 
+@pytest.mark.slow
 def test_a_serial_study_carries_on_past_a_failing_cell_and_reports_it(registry, tmp_path, seed_one_fails):
     grid, out = failing_grid(tmp_path), tmp_path / "out"
     r = runner.invoke(app, ["study", str(grid), "--out", str(out)])

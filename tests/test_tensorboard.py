@@ -29,6 +29,7 @@ def test_a_run_folder_holds_events_matching_its_metrics(registry):
         assert (row["steps"], "ppo/approx_kl") in by_tag and (row["steps"], "time/steps_per_sec") in by_tag
 
 
+@pytest.mark.slow
 def test_tensorboard_reads_runs_and_study_trees(registry, tmp_path):
     event_accumulator = pytest.importorskip("tensorboard.backend.event_processing.event_accumulator")
     assert runner.invoke(app, ["teacher", "train", "hopper", "--steps", "2048", "--name", "tiny"]).exit_code == 0
