@@ -434,3 +434,36 @@ def test_paired_numerics_pairs_seeds_and_reads_each_run_at_the_mark(tmp_path):
     # the same command twice: the same bits, so no difference and no lower seed
     assert all(r["a"] == r["b"] for r in summary["rows"]) and summary["a_lower_on"] == 0
     assert summary["rows"][0]["a"] != summary["rows"][1]["a"]  # two seeds, two runs
+
+
+def _timed_run(folder: Path, run_id: str, update_times: list[float], status: str = "completed") -> None:
+    """A MIKT run folder with only what update_steadiness reads: its card and one timing row per iteration."""
+    folder.mkdir(parents=True)
+    card = {"run_id": run_id, "status": status, "env": "centipede-six", "method": "mikt", "seed": 0,
+            "total_steps": 2048 * len(update_times),
+            "teachers": [{"name": "centipede-four", "version": 2}, {"name": "ant", "version": 2}],
+            "config": {"ppo": {"n_steps": 2048, "num_envs": 1},
+                       "options": {"ramp_start": 0.45, "drop_teacher_at": 0.9}}, "result": {}}
+    (folder / "run.json").write_text(json.dumps(card))
+    rows = [{"iteration": i + 1, "steps": 2048 * (i + 1), "time_rollout": 1.0, "time_update": u}
+            for i, u in enumerate(update_times)]
+    (folder / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+
+
+def test_update_steadiness_reports_each_phase_s_spread_of_the_update_time(tmp_path, capsys, monkeypatch):
+    steadiness = load_script("update_steadiness")
+    runs = tmp_path / "runs"
+    # 200 iterations: independent 1-90, ramp 91-170, hand-over window 171-180, teacher-free 181-200. The slowed
+    # run's update triples from iteration 40 on, inside its first phase, as the slowed multi-cat runs' did.
+    _timed_run(runs / "run1", "run1", [0.5] * 200)
+    _timed_run(runs / "run2", "run2", [0.5] * 39 + [1.5] * 161)
+    _timed_run(runs / "run3", "run3", [0.5] * 200, status="interrupted")
+    monkeypatch.setattr(sys, "argv", ["update_steadiness.py", str(runs), "--json", str(tmp_path / "out.json")])
+    steadiness.main()
+    out = capsys.readouterr().out
+    rows = {r["run"]: r["spread"] for r in json.loads((tmp_path / "out.json").read_text())}
+    assert set(rows) == {"run1", "run2"}  # completed runs only
+    # the hand-over window's 10 iterations are fewer than one rolling median: no figure for it
+    assert rows["run1"] == {"independent": 1.0, "ramp": 1.0, "teacher-free": 1.0}
+    assert rows["run2"]["independent"] == 3.0 and rows["run2"]["ramp"] == 1.0
+    assert "2 completed runs; highest spread 3.00x" in out
