@@ -18,6 +18,7 @@ import statistics
 from collections.abc import Callable
 from pathlib import Path
 
+from miktcli.engine.ppo import PPOConfig
 from miktcli.methods.mikt import MiktConfig
 from miktcli.workflows.slowdown import FACTOR, WINDOW, update_ratio
 
@@ -32,8 +33,8 @@ def phases_of(card: dict) -> Callable[[int], str]:
 
 
 def iterations_of(card: dict) -> int:
-    ppo = card["config"]["ppo"]
-    return -(-card["total_steps"] // (ppo["n_steps"] * ppo["num_envs"]))
+    """The run's iteration count as its trainer counted it (PPOTrainer.num_iterations)."""
+    return max(1, card["total_steps"] // PPOConfig.from_record(card["config"]["ppo"]).batch_size)
 
 
 def steadiness(run: Path) -> dict | None:
