@@ -42,7 +42,8 @@ import torch
 
 from miktcli.engine.compile_choice import AUTO_MIN_STEPS
 from miktcli.engine.policies import GaussianActorCritic
-from miktcli.engine.ppo import PPOConfig, PPOTrainer, RewardScaler
+from miktcli.engine.ppo import PPOConfig, PPOTrainer, RewardScaler, flushing_denormals
+from miktcli.engine.together import SeedsTogether
 from miktcli.envs import make_env
 from miktcli.envs.vector import SyncEnvs
 from miktcli.methods.mikt import MiktActorCritic, MiktConfig
@@ -224,12 +225,50 @@ def seeds_together(steps: int, seeds: int, repeats: int, env: dict[str, str]) ->
             "all_separate_s": separate}
 
 
+def together_update(seeds: int, repeats: int, n_steps: int = 1024) -> dict:
+    """The update alone, in process: `seeds` two-teacher centipede-eight agents (four + six, the study's KL), one
+    epoch over one rollout each, trained one after another (PPOTrainer.update) against together
+    (SeedsTogether.update), on the same batches, alternated; best of `repeats`, per seed and minibatch."""
+    def make(seed: int) -> PPOTrainer:
+        torch.manual_seed(seed)
+        agent = mikt_agent("centipede-eight", ["centipede-four", "centipede-six"])
+        return PPOTrainer(agent, lambda: make_env("centipede-eight"), PPOConfig(n_steps=n_steps, epochs=1,
+                                                                                kl_coef=0.1), 10**6, seed)
+    alone = [make(s) for s in range(seeds)]
+    together = SeedsTogether([make(s) for s in range(seeds)])
+    batches = [t._values_and_targets(t.collect()[0]) for t in alone]
+    per = seeds * (n_steps // 64)
+    best = {"separate": float("inf"), "together": float("inf")}
+    with flushing_denormals(True):
+        for _ in range(repeats + 1):  # the first round warms up and is kept only if it is the best
+            start = time.perf_counter()
+            for trainer, batch in zip(alone, batches, strict=True):
+                trainer.update(batch)
+            best["separate"] = min(best["separate"], (time.perf_counter() - start) / per)
+            start = time.perf_counter()
+            together.update(batches)
+            best["together"] = min(best["together"], (time.perf_counter() - start) / per)
+    for trainer in [*alone, *together.trainers]:
+        trainer.close()
+    return {"seeds": seeds, "separate_ms_per_seed_minibatch": 1e3 * best["separate"],
+            "together_ms_per_seed_minibatch": 1e3 * best["together"]}
+
+
 def seeds_together_markdown(res: dict) -> list[str]:
     st = res["seeds_together"]
-    return [f"| a study cell, whole process: {st['seeds']} seeds × {fmt(st['steps_per_seed'])} steps of a two-teacher "
-            f"transfer (four + six → eight) in one process (`--seeds`) vs {st['seeds']} processes one after another "
-            f"| {st['together_s']:.1f} s | {st['separate_s']:.1f} s | "
-            f"{res['ratios']['seeds_together_vs_separate']:.2f}× faster | ≥ {TARGETS['seeds_together_vs_separate']}× |"]
+    rows = []
+    if "update" in st:
+        up = st["update"]
+        rows.append(f"| the update alone, in process: {up['seeds']} two-teacher centipede-eight agents, one epoch, "
+                    f"together (stacked) vs one after another, per seed and minibatch | "
+                    f"{up['together_ms_per_seed_minibatch']:.2f} ms | {up['separate_ms_per_seed_minibatch']:.2f} ms "
+                    f"| {up['separate_ms_per_seed_minibatch'] / up['together_ms_per_seed_minibatch']:.2f}× faster "
+                    f"| |")
+    return rows + [
+        f"| a study cell, whole process: {st['seeds']} seeds × {fmt(st['steps_per_seed'])} steps of a two-teacher "
+        f"transfer (four + six → eight) in one process (`--seeds`) vs {st['seeds']} processes one after another "
+        f"| {st['together_s']:.1f} s | {st['separate_s']:.1f} s | "
+        f"{res['ratios']['seeds_together_vs_separate']:.2f}× faster | ≥ {TARGETS['seeds_together_vs_separate']}× |"]
 
 
 # --- 4. pieces --------------------------------------------------------------------------------------------
@@ -506,6 +545,7 @@ def main(argv: list[str] | None = None) -> dict:
             env = process_env(registry)
             res["whole_process"] = whole_process(process_commands(steps_teacher, steps_transfer), repeats, env)
             res["seeds_together"] = seeds_together(steps_transfer, 2 if quick else 5, repeats, env)
+            res["seeds_together"]["update"] = together_update(2 if quick else 5, repeats, 128 if quick else 1024)
     res["ratios"] = ratios(res)
     res["wall_s"] = time.perf_counter() - t_start
     args.out.mkdir(parents=True, exist_ok=True)
@@ -527,6 +567,7 @@ def process_env(registry: str) -> dict[str, str]:
 def only_seeds_together(res: dict, args: argparse.Namespace, repeats: int, steps: int, t_start: float) -> dict:
     with tempfile.TemporaryDirectory() as registry:
         res["seeds_together"] = seeds_together(steps, 2 if args.quick else 5, repeats, process_env(registry))
+    res["seeds_together"]["update"] = together_update(2 if args.quick else 5, repeats, 128 if args.quick else 1024)
     res["ratios"] = {"seeds_together_vs_separate": res["seeds_together"]["separate_s"]
                      / res["seeds_together"]["together_s"]}
     res["wall_s"] = time.perf_counter() - t_start

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from helpers import fake_run
 
@@ -266,6 +267,24 @@ def test_throughput_quick_run_writes_its_tables_and_figures(tmp_path):
     assert ratios["seeds_together_vs_separate"] == 1.6
     page = throughput.markdown({**res, "ratios": ratios})
     assert "two-teacher transfer" in page and "5 seeds × 20,480 steps" in page
+    update = throughput.together_update(2, 1, n_steps=128)
+    assert update["seeds"] == 2
+    assert update["together_ms_per_seed_minibatch"] > 0 and update["separate_ms_per_seed_minibatch"] > 0
+    res["seeds_together"]["update"] = update
+    page = throughput.markdown({**res, "ratios": ratios})
+    assert "the update alone, in process: 2 two-teacher centipede-eight agents" in page
+
+
+def test_loss_bits_finds_no_difference_on_the_same_code_and_names_a_changed_tensor(tmp_path, capsys):
+    loss_bits = load_script("loss_bits")
+    saved = tmp_path / "ref.pt"
+    assert loss_bits.main(["save", str(saved)]) == 0
+    assert loss_bits.main(["check", str(saved)]) == 0
+    reference = torch.load(saved)
+    reference["m2"]["loss"] = reference["m2"]["loss"] + 1.0
+    torch.save(reference, saved)
+    assert loss_bits.main(["check", str(saved)]) == 1
+    assert "differs: m2 loss" in capsys.readouterr().out
 
 
 def test_aggregate_report_normalises_by_random_and_the_baseline_per_target(registry, tmp_path):

@@ -54,6 +54,19 @@ def test_each_seed_s_update_is_its_update_alone_to_float_rounding(kind):
     assert not torch.allclose(together[0].flat.flat, together[1].flat.flat)
 
 
+@pytest.mark.slow
+def test_the_compiled_stacked_update_is_each_seed_s_update_alone_to_float_rounding():
+    agents = [agent_for("mikt", seed) for seed in range(2)]
+    alone, together = trainers(agents), trainers(agents, CONFIG.model_copy(update={"compile_loss": True}))
+    batches = [t._values_and_targets(t.collect()[0]) for t in alone]
+    metrics_alone = [t.update(b) for t, b in zip(alone, batches, strict=True)]
+    metrics_together = SeedsTogether(together).update(batches)
+    for a, b, ma, mb in zip(alone, together, metrics_alone, metrics_together, strict=True):
+        for key in ma:
+            assert mb[key] == pytest.approx(ma[key], rel=1e-4, abs=1e-6), key
+        assert torch.allclose(a.flat.flat.detach(), b.flat.flat.detach(), atol=1e-5)
+
+
 def test_seeds_train_together_only_where_they_are_one_problem():
     agents = [agent_for("ppo", seed) for seed in range(2)]
     with pytest.raises(ValueError, match="at least two"):

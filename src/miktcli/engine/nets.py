@@ -113,6 +113,17 @@ class RolloutNormalizer:
         out[...] = centred
 
 
+def linear(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None = None) -> torch.Tensor:
+    """F.linear, and the same for weights stacked over seeds: a (S, out, in) weight with x (S, B, in) is one
+    batched matmul (the seeds-together update, miktcli.engine.together). A 2-D weight is F.linear itself, so a
+    single run's numbers are untouched; a frozen teacher's 2-D weight broadcasts over every seed's rows."""
+    if weight.dim() == 2:
+        return F.linear(x, weight, bias)
+    if bias is None:
+        return torch.bmm(x, weight.transpose(-1, -2))
+    return torch.baddbmm(bias.unsqueeze(-2), x, weight.transpose(-1, -2))
+
+
 def orthogonal_linear(n_in: int, n_out: int, gain: float) -> nn.Linear:
     layer = nn.Linear(n_in, n_out)
     nn.init.orthogonal_(layer.weight, gain)
@@ -138,9 +149,10 @@ class MLP(nn.Module):
         )
         self.head = orthogonal_linear(sizes[-1], n_out, out_gain)
 
-    # The hot paths call F.linear on these, skipping nn.Module's call overhead. Read afresh at each call (not
+    # The hot paths call `linear` on these, skipping nn.Module's call overhead. Read afresh at each call (not
     # kept as references), so that torch.func.functional_call's swapped parameters reach them: the
-    # seeds-together update (miktcli.engine.together) runs every seed's loss through one module that way.
+    # seeds-together update (miktcli.engine.together) runs every seed's loss through one module that way, with
+    # each parameter stacked over the seeds.
     @property
     def layer_params(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
         return [(layer.weight, layer.bias) for layer in self.hidden]
@@ -159,8 +171,8 @@ class MLP(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         for weight, bias in self.layer_params:
-            x = self.act(F.linear(x, weight, bias))
-        return F.linear(x, *self.head_params)
+            x = self.act(linear(x, weight, bias))
+        return linear(x, *self.head_params)
 
     def rollout_forward(self, x: torch.Tensor) -> Callable[[], torch.Tensor]:
         """`forward(x)` for the rollout's fixed input tensor `x` (rows: envs), into buffers made once: the same
@@ -185,7 +197,7 @@ class MLP(nn.Module):
     def preactivations(self, x: torch.Tensor) -> list[torch.Tensor]:
         zs = []
         for weight, bias in self.layer_params:
-            z = F.linear(x, weight, bias)
+            z = linear(x, weight, bias)
             zs.append(z)
             x = self.act(z)
         return zs

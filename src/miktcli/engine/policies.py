@@ -14,14 +14,22 @@ LOG_2PI = math.log(2.0 * math.pi)
 TEACHER_FREE = "teacher-free"  # the phase in which a transfer method's student runs without its teachers
 
 
+def over_rows(param: torch.Tensor) -> torch.Tensor:
+    """A state-independent parameter (D,) as it is; stacked over seeds (S, D), as (S, 1, D), so that it meets
+    each seed's own rows (S, B, D) in the seeds-together update (miktcli.engine.together)."""
+    return param if param.dim() == 1 else param.unsqueeze(-2)
+
+
 def gaussian_log_prob(actions: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
     """Log-density of a diagonal Gaussian, written out: cheaper than torch.distributions on tiny batches."""
+    log_std = over_rows(log_std)
     z = (actions - mean) * torch.exp(-log_std)
     return -(0.5 * z.square() + log_std + 0.5 * LOG_2PI).sum(-1)
 
 
 def gaussian_kl(mean: torch.Tensor, log_std: torch.Tensor, old_mean: torch.Tensor, old_log_std: torch.Tensor):
     """KL(new || old) between diagonal Gaussians, per sample."""
+    log_std, old_log_std = over_rows(log_std), over_rows(old_log_std)
     var_ratio = torch.exp(2.0 * (log_std - old_log_std))
     return (0.5 * (var_ratio + (mean - old_mean).square() * torch.exp(-2.0 * old_log_std) - 1.0)
             - (log_std - old_log_std)).sum(-1)

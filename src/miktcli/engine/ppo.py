@@ -407,44 +407,49 @@ class PPOTrainer:
     # --- update -------------------------------------------------------------------------------------
     def loss(self, mb: Minibatch, old_log_std: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """The minibatch loss and what to log. Every weighted term is in `terms` once and the loss is their
-        sum, so no term can be counted twice (the KL term once was); tests check each term's gradient."""
+        sum, so no term can be counted twice (the KL term once was); tests check each term's gradient.
+
+        Every reduction is over the last (sample) dimension, so the same code takes a minibatch stacked over
+        seeds, (S, B, ...), with the agent's parameters stacked likewise (miktcli.engine.together): then the
+        loss and every log are (S,), one per seed."""
         cfg, agent = self.config, self.agent
         mean, value, extra = agent.evaluate_actions(mb.obs)
         new_logprob = gaussian_log_prob(mb.actions, mean, agent.log_std)
         logratio = new_logprob - mb.log_probs
         ratio = logratio.exp()
         mb_adv = mb.advantages
-        if cfg.normalize_advantage and mb_adv.numel() > 1:
-            mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
-        pg_loss = torch.max(-mb_adv * ratio, -mb_adv * ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range)).mean()
+        if cfg.normalize_advantage and mb_adv.shape[-1] > 1:
+            mb_adv = (mb_adv - mb_adv.mean(-1, keepdim=True)) / (mb_adv.std(-1, keepdim=True) + 1e-8)
+        pg_loss = torch.max(-mb_adv * ratio,
+                            -mb_adv * ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range)).mean(-1)
         # CAT's unclipped term has no target (see PPOConfig.value_loss)
         v_error = value.square() if cfg.value_loss == "cat-zero-target" else (value - mb.returns).square()
         if cfg.clip_value_loss:
             v_clipped = mb.values + (value - mb.values).clamp(-cfg.clip_range, cfg.clip_range)
             v_clipped_error = (v_clipped - mb.returns).square()
             if cfg.value_loss in ("ppo2", "cat-zero-target"):
-                v_loss = 0.5 * torch.max(v_error, v_clipped_error).mean()
+                v_loss = 0.5 * torch.max(v_error, v_clipped_error).mean(-1)
             else:  # SB3: with clip_range_vf set, only the clipped prediction's error, and no 0.5
-                v_loss = v_clipped_error.mean()
+                v_loss = v_clipped_error.mean(-1)
         else:
-            v_loss = (1.0 if cfg.value_loss == "sb3" else 0.5) * v_error.mean()
+            v_loss = (1.0 if cfg.value_loss == "sb3" else 0.5) * v_error.mean(-1)
         terms = {"loss_policy": pg_loss, "loss_value_weighted": cfg.vf_coef * v_loss}
         if cfg.ent_coef:
-            entropy = (agent.log_std + 0.5 * (1.0 + np.log(2 * np.pi))).sum()
+            entropy = (agent.log_std + 0.5 * (1.0 + np.log(2 * np.pi))).sum(-1)
             terms["loss_entropy"] = -cfg.ent_coef * entropy
         if cfg.kl_coef:
-            terms["loss_kl"] = cfg.kl_coef * gaussian_kl(mean, agent.log_std, mb.means, old_log_std).mean()
+            terms["loss_kl"] = cfg.kl_coef * gaussian_kl(mean, agent.log_std, mb.means, old_log_std).mean(-1)
         clash = terms.keys() & extra.keys()
         if clash:
             raise ValueError(f"the agent's extra loss terms reuse engine names: {sorted(clash)}")
         terms.update(extra)
-        loss = torch.stack(list(terms.values())).sum()
+        loss = torch.stack(list(terms.values())).sum(0)
         with torch.no_grad():
             logs = {
                 "loss_policy": pg_loss, "loss_value": v_loss,
-                "approx_kl": ((ratio - 1) - logratio).mean(),
-                "clipfrac": ((ratio - 1.0).abs() > cfg.clip_range).float().mean(),
-                "ratio_dev": (ratio - 1.0).abs().max(),
+                "approx_kl": ((ratio - 1) - logratio).mean(-1),
+                "clipfrac": ((ratio - 1.0).abs() > cfg.clip_range).float().mean(-1),
+                "ratio_dev": (ratio - 1.0).abs().amax(-1),
                 **{k: v for k, v in terms.items() if k not in ("loss_policy", "loss_value_weighted")},
             }
         return loss, logs

@@ -24,8 +24,8 @@ from torch import nn
 from torch.nn import functional as F
 
 from miktcli.engine.adam import FusedAdam
-from miktcli.engine.nets import MLP, ObsNormalizer
-from miktcli.engine.policies import LOG_2PI, TEACHER_FREE, ActorCritic, GaussianActorCritic, gaussian_kl
+from miktcli.engine.nets import MLP, ObsNormalizer, linear
+from miktcli.engine.policies import LOG_2PI, TEACHER_FREE, ActorCritic, GaussianActorCritic, gaussian_kl, over_rows
 from miktcli.errors import MiktError
 from miktcli.methods.base import Method
 from miktcli.methods.mixing import student_key, teacher_key, teacher_sources
@@ -155,6 +155,7 @@ class GaussianDecoder(nn.Module):
         `reduce_mean`), not a departure; it also keeps L_MI's scale independent of the target's size (97…181
         dims). The clamp of the log-std is ours: constant observation entries otherwise drive it to −∞."""
         log_std = self.log_std.clamp(min=self.log_std_min) if self.log_std_min is not None else self.log_std
+        log_std = over_rows(log_std)
         z = (target - self.mean(emb)) * torch.exp(-log_std)
         return (0.5 * z.square() + log_std + 0.5 * LOG_2PI).mean(-1)
 
@@ -380,7 +381,7 @@ class MiktActorCritic(ActorCritic):
         if not self.fading:
             return weights
         u = self.fade_weight
-        return torch.cat([weights[:, :1] + u * (1.0 - weights[:, :1]), (1.0 - u) * weights[:, 1:]], 1)
+        return torch.cat([weights[..., :1] + u * (1.0 - weights[..., :1]), (1.0 - u) * weights[..., 1:]], -1)
 
     def forward_weights(self) -> tuple[torch.Tensor, torch.Tensor]:
         w_pi, w_vf = self.mixing_weights()
@@ -395,14 +396,14 @@ class MiktActorCritic(ActorCritic):
         x = obs
         if len(teacher_z) == 1:
             # p·z_s + (1 − p)·z_t as one lerp: fewer autograd nodes, and exactly z_s when p = 1.
-            p_student = weights[:, 0].unbind()
             for j, (w, b) in enumerate(student.layer_params):
-                x = torch.tanh(torch.lerp(teacher_z[0][j], F.linear(x, w, b), p_student[j]))
-            return F.linear(x, *student.head_params)
+                x = torch.tanh(torch.lerp(teacher_z[0][j], linear(x, w, b), _layer_weight(weights, j, 0)))
+            return linear(x, *student.head_params)
         for j, (w, b) in enumerate(student.layer_params):
-            z = weights[j, 0] * F.linear(x, w, b) + sum(weights[j, k + 1] * tz[j] for k, tz in enumerate(teacher_z))
+            z = _layer_weight(weights, j, 0) * linear(x, w, b) + sum(
+                _layer_weight(weights, j, k + 1) * tz[j] for k, tz in enumerate(teacher_z))
             x = torch.tanh(z)
-        return F.linear(x, *student.head_params)
+        return linear(x, *student.head_params)
 
     def _teacher_input(self, emb: torch.Tensor) -> torch.Tensor:
         # "w/o RL gradients": the PPO loss may not shape φ; L_MI still reaches it through `emb`.
@@ -413,7 +414,7 @@ class MiktActorCritic(ActorCritic):
         """Each teacher's hidden pre-activations on its embedding, projected by U where the option asks."""
         tz = [net.preactivations(self._teacher_input(e)) for net, e in zip(nets, embs, strict=True)]
         if lateral is not None:
-            tz = [[F.linear(z, u.weight) for z, u in zip(zs, us, strict=True)] for zs, us in zip(tz, lateral,
+            tz = [[linear(z, u.weight) for z, u in zip(zs, us, strict=True)] for zs, us in zip(tz, lateral,
                                                                                                     strict=True)]
         if self.config.mixing == "shared" and len(tz) > 1:  # one source for the mix: Σ_k z_k per layer
             tz = [[sum(layer) for layer in zip(*tz, strict=True)]]
@@ -511,22 +512,22 @@ class MiktActorCritic(ActorCritic):
         if self.coupling_on and (cfg.coupling_pi_coef or cfg.coupling_vf_coef):
             if cfg.coupling_ramp == "student-weight":  # the ramp is a floor on p^j: push only the layers below it
                 floor = torch.log(self.coupling_weight)
-                coupling = (cfg.coupling_pi_coef * (floor - torch.log(w_pi[:, 0])).clamp(min=0).mean()
-                            + cfg.coupling_vf_coef * (floor - torch.log(w_vf[:, 0])).clamp(min=0).mean())
+                coupling = (cfg.coupling_pi_coef * (floor - torch.log(w_pi[..., 0])).clamp(min=0).mean(-1)
+                            + cfg.coupling_vf_coef * (floor - torch.log(w_vf[..., 0])).clamp(min=0).mean(-1))
                 losses["loss_coupling"] = coupling
             else:
-                coupling = (cfg.coupling_pi_coef * -torch.log(w_pi[:, 0]).mean()
-                            + cfg.coupling_vf_coef * -torch.log(w_vf[:, 0]).mean())
+                coupling = (cfg.coupling_pi_coef * -torch.log(w_pi[..., 0]).mean(-1)
+                            + cfg.coupling_vf_coef * -torch.log(w_vf[..., 0]).mean(-1))
                 losses["loss_coupling"] = self.coupling_weight * coupling
         if cfg.mi and cfg.mi_coef:
-            mi = sum(dec.neg_log_prob(obs, e).mean() for dec, e in zip(self.decoders, embs, strict=True))
+            mi = sum(dec.neg_log_prob(obs, e).mean(-1) for dec, e in zip(self.decoders, embs, strict=True))
             losses["loss_mi"] = cfg.mi_coef * mi
         if self.distilling and cfg.distil_coef:
             # The teacher-free path learns what the mixed network does (targets fixed), with the shared
             # log-std left out: KL(mixed ‖ teacher-free) of two Gaussians with one std is the means' term alone.
             log_std = self.log_std.detach()
-            kl = gaussian_kl(mean.detach(), log_std, self.pi(obs), log_std).mean()
-            value_error = 0.5 * (self.vf(obs).squeeze(-1) - value.detach()).square().mean()
+            kl = gaussian_kl(mean.detach(), log_std, self.pi(obs), log_std).mean(-1)
+            value_error = 0.5 * (self.vf(obs).squeeze(-1) - value.detach()).square().mean(-1)
             losses["loss_distil"] = cfg.distil_coef * (kl + value_error)
         return mean, value, losses
 
@@ -609,6 +610,13 @@ def fit_network(net: MLP, obs: torch.Tensor, target: torch.Tensor, scale: torch.
     for name, param in own.items():
         param.copy_(kept[name])
     return first, best
+
+
+def _layer_weight(weights: torch.Tensor, j: int, k: int) -> torch.Tensor:
+    """Layer j's mixing weight of source k (0: the student) from (layers, sources) weights: a scalar; from
+    weights stacked over seeds (S, layers, sources), (S, 1, 1), to meet each seed's rows (S, B, width)."""
+    w = weights[..., j, k]
+    return w if w.dim() == 0 else w[:, None, None]
 
 
 def _sum_into(out: torch.Tensor, zeros: torch.Tensor, terms: tuple[torch.Tensor, ...]) -> torch.Tensor:
