@@ -275,12 +275,41 @@ def test_a_study_report_shows_each_run_s_hand_over_and_slowdown():
     f = HandoverFigures(run="run7", handover="fold", at_step=1_800_384, with_teachers=5168.0,
                         without_teachers=5000.0, kept=5000 / 5168, before=4000.0, after=4100.0,
                         after_200k=4200.0, final=4300.0)
-    summary = SimpleNamespace(handovers=[("a+b>c|mikt|0", f)],
+    summary = SimpleNamespace(handovers=[("a+b>c|mikt|0", f)], handover_pairs=[],
                               slowdowns=[("a+b>c|mikt|1", "run8", {"phase": "ramp", "step": 462848, "factor": 2.7})])
     text = "\n".join(handover_lines(summary) + slowdown_lines(summary))
     assert "| a+b>c | mikt | 0 | run7 | fold | 1,800,384 | 5,168 | 5,000 | 97% | 4,000 | 4,100 | +100 |" in text
     assert "| a+b>c | mikt | 1 | run8 | ramp | 462,848 | 2.7× |" in text
     assert handover_lines(SimpleNamespace(handovers=[])) == []
+
+
+def test_a_pair_s_hand_overs_are_seed_means_beside_the_baseline_over_the_same_windows():
+    from types import SimpleNamespace
+
+    from miktcli.studies.handover import HandoverFigures, pair_handover, pair_handover_json
+    from miktcli.studies.render_markdown import handover_pair_lines
+
+    def figures(run, with_teachers, without, before, after):
+        return HandoverFigures(run=run, handover="fold-linear", at_step=100_000, with_teachers=with_teachers,
+                               without_teachers=without, kept=without / with_teachers, before=before, after=after,
+                               after_200k=after, final=None)
+
+    seeds = [figures("run1", 4000.0, 2000.0, 3000.0, 2800.0), figures("run2", 2000.0, 2600.0, 1000.0, 1000.0)]
+    # the baseline's per-update returns: 10 before the drop's window, 50k-100k at 1, 100k-150k at 5, later 99
+    rows = [[{"steps": s, "episode_return_iter": 10.0 if s <= 50_000 else 1.0 if s <= 100_000 else
+              5.0 if s <= 150_000 else 99.0} for s in range(10_000, 200_001, 10_000)]]
+    h = pair_handover("a+b → c", "mikt", seeds, "vpg", rows + [[{"steps": 60_000, "episode_return_iter": 3.0}]])
+    assert (h.with_teachers, h.without_teachers, h.before, h.after) == (3000.0, 2300.0, 2000.0, 1900.0)
+    assert h.kept == pytest.approx(2300 / 3000)  # the ratio of seed means, not the mean of the ratios (0.825)
+    assert (h.baseline_runs, h.baseline_before, h.baseline_after) == (2, 2.0, 5.0)  # the second has no "after"
+    assert h.change == -100.0 and h.baseline_change == 3.0
+    lines = handover_pair_lines(SimpleNamespace(handover_pairs=[h], grid=SimpleNamespace(baseline="vpg")))
+    assert "| a+b → c | mikt | 2 | 3,000 | 2,300 | 77% | 2,000 | 1,900 | -100 | 2 | 2 | 5 | +3 |" in lines
+    assert pair_handover_json(h)["kept"] == pytest.approx(2300 / 3000)
+    alone = pair_handover("a → c", "mikt", seeds[:1], "vpg", [])
+    assert alone.baseline_runs == 0 and pair_handover_json(alone)["baseline_change"] is None
+    assert "| 0 | — | — | — |" in handover_pair_lines(SimpleNamespace(handover_pairs=[alone],
+                                                                         grid=SimpleNamespace(baseline="vpg")))[-2]
 
 
 @pytest.mark.parametrize("teachers", [1, 2])

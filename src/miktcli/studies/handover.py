@@ -1,11 +1,12 @@
 """A run's hand-over in numbers: the deterministic return with and without the teachers at the drop (what
 the run recorded), and the per-update return (CAT's estimator: the mean over the episodes that finished in
-one rollout) in windows on each side of it. Used by study reports and the hand-over screening."""
+one rollout) in windows on each side of it; and a pair's, over its seeds, beside the baseline from scratch on
+the same windows. Used by study reports and the hand-over screening."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -58,3 +59,65 @@ def handover_figures(run: Run, rows: list[dict[str, Any]] | None = None) -> Hand
         after_200k=window_mean(rows, at, at + 200_000),
         final=run.card.result.get("final_train_return"),
     )
+
+
+@dataclass(frozen=True)
+class PairHandover:
+    """One method's hand-overs on one pair as seed means, beside the baseline from scratch on the same target over
+    the same two windows: it drops nothing there, so its change is how much the window moves by itself (a
+    learning curve late in a linearly decaying learning rate, and the noise of a few seeds)."""
+
+    pair: str
+    method: str
+    runs: int
+    at_step: int
+    with_teachers: float
+    without_teachers: float
+    before: float
+    after: float
+    baseline: str
+    baseline_runs: int
+    baseline_before: float  # NaN without baseline runs
+    baseline_after: float
+
+    @property
+    def kept(self) -> float | None:
+        """The ratio of seed means, the issue's measure (None when the mixed policy's mean is not positive)."""
+        return self.without_teachers / self.with_teachers if self.with_teachers > 0 else None
+
+    @property
+    def change(self) -> float:
+        return self.after - self.before
+
+    @property
+    def baseline_change(self) -> float:
+        return self.baseline_after - self.baseline_before
+
+
+def pair_handover(pair: str, method: str, figures: list[HandoverFigures], baseline: str,
+                  baseline_rows: list[list[dict[str, Any]]]) -> PairHandover:
+    """`figures` (one per seed, at least one) as seed means; the baseline's runs (their metrics rows) read over
+    the same windows, around the seeds' median drop step (one step in a grid: every run has the same budget)."""
+    at = int(np.median([f.at_step for f in figures]))
+
+    def mean(values: list[float]) -> float:  # over the runs with episodes in the window (NaN: none had)
+        finite = [v for v in values if math.isfinite(v)]
+        return float(np.mean(finite)) if finite else float("nan")
+
+    return PairHandover(
+        pair=pair, method=method, runs=len(figures), at_step=at,
+        with_teachers=mean([f.with_teachers for f in figures]),
+        without_teachers=mean([f.without_teachers for f in figures]),
+        before=mean([f.before for f in figures]), after=mean([f.after for f in figures]),
+        baseline=baseline, baseline_runs=len(baseline_rows),
+        baseline_before=mean([window_mean(rows, at - WINDOW, at) for rows in baseline_rows]),
+        baseline_after=mean([window_mean(rows, at, at + WINDOW) for rows in baseline_rows]),
+    )
+
+
+def pair_handover_json(h: PairHandover) -> dict[str, Any]:
+    def number(x: float | None) -> float | None:
+        return None if x is None or not math.isfinite(x) else float(x)
+
+    return {**{k: number(v) if isinstance(v, float) else v for k, v in asdict(h).items()},
+            "kept": number(h.kept), "change": number(h.change), "baseline_change": number(h.baseline_change)}

@@ -29,6 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from miktcli.errors import MiktError, describe_validation_error
 from miktcli.studies.aggregates import AcrossPairs, across_pairs, baseline_targets, unavailable
 from miktcli.studies.grid import Grid, ReportRequest
+from miktcli.studies.handover import pair_handover_json
 from miktcli.studies.random_cache import CACHE_FILE, INITIAL_CACHE_FILE, study_random_returns
 from miktcli.studies.reference import load_reference
 from miktcli.studies.render_figures import write_profiles
@@ -152,8 +153,12 @@ register(Section("across-pairs", "every method normalised between the random pol
 register(Section("pairs", "per pair: the table at the marks, comparisons over seeds, curves and weights",
                  lambda given: Rendered([line for pair in given.summary.pairs
                                          for line in pair_lines(pair, given.summary.grid.baseline)])))
-register(Section("hand-over", "each run with teachers at its drop: the mixed policy and the student alone",
-                 lambda given: Rendered(handover_lines(given.summary))))
+register(Section("hand-over", "each run with teachers at its drop: the mixed policy and the student alone; per "
+                 "pair, beside the baseline from scratch over the same windows",
+                 lambda given: Rendered(handover_lines(given.summary), {
+                     "by_pair": [pair_handover_json(h) for h in given.summary.handover_pairs]}
+                     if given.summary.handover_pairs else None),
+                 json_key="handover"))
 register(Section("slowdowns", "runs whose update time grew as they trained",
                  lambda given: Rendered(slowdown_lines(given.summary))))
 

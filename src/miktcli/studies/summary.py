@@ -14,7 +14,7 @@ import numpy as np
 from miktcli.registry.runs import Run
 from miktcli.stats.pairwise import compare
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key, file_slug
-from miktcli.studies.handover import HandoverFigures, handover_figures
+from miktcli.studies.handover import HandoverFigures, PairHandover, handover_figures, pair_handover
 
 RunOf = Callable[[str], Run | None]  # a cell key → its run, if one was started
 PerSeed = dict[str, dict[str, np.ndarray]]  # method → measure → one value per completed seed
@@ -223,6 +223,7 @@ class StudySummary:
     teachers: dict[str, list[TeacherVersion]] = field(default_factory=dict)
     handovers: list[tuple[str, HandoverFigures]] = field(default_factory=list)  # cell key, its run's hand-over
     slowdowns: list[tuple[str, str, dict[str, Any]]] = field(default_factory=list)  # cell key, run id, record
+    handover_pairs: list[PairHandover] = field(default_factory=list)  # per pair and method, with the baseline
 
 
 def _mark_indices(marks: list[int], steps: np.ndarray | None) -> dict[int, int]:
@@ -282,7 +283,23 @@ def summarise(grid: Grid, cell_runs: dict[str, str], run_of: RunOf) -> StudySumm
     slowdowns = [(key, run.id, record) for key, _, run in cells if run is not None
                  for record in run.card.result.get("slowdowns", [])]
     return StudySummary(grid, pairs, left_out, cells, teacher_versions(grid, {key: run for key, _, run in cells}),
-                        handovers=handovers, slowdowns=slowdowns)
+                        handovers=handovers, slowdowns=slowdowns,
+                        handover_pairs=handovers_by_pair(pairs, grid.baseline, [f for _, f in handovers]))
+
+
+def handovers_by_pair(pairs: list[PairSummary], baseline: str, figures: list[HandoverFigures]) -> list[PairHandover]:
+    """Each pair's methods that recorded hand-overs, as seed means beside the pair's baseline runs."""
+    by_run = {f.run: f for f in figures}
+    out = []
+    for pair in pairs:
+        base = next((m.runs for m in pair.methods if m.name == baseline), [])
+        base_rows: list[list[dict[str, Any]]] | None = None
+        for method in pair.methods:
+            seeds = [by_run[r.id] for r in method.runs if r.id in by_run]
+            if seeds:
+                base_rows = [r.read_metrics() for r in base] if base_rows is None else base_rows
+                out.append(pair_handover(pair.name, method.name, seeds, baseline, base_rows))
+    return out
 
 
 def teacher_versions(grid: Grid, run_of_cell: dict[str, Run | None]) -> dict[str, list[TeacherVersion]]:
