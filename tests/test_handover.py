@@ -310,6 +310,11 @@ def test_a_pair_s_hand_overs_are_seed_means_beside_the_baseline_over_the_same_wi
     assert alone.baseline_runs == 0 and pair_handover_json(alone)["baseline_change"] is None
     assert "| 0 | — | — | — |" in handover_pair_lines(SimpleNamespace(handover_pairs=[alone],
                                                                          grid=SimpleNamespace(baseline="vpg")))[-2]
+    # a baseline with teachers drops them too: no control columns
+    mixed = pair_handover("a → c", "mikt", seeds, "", [])
+    summary = SimpleNamespace(handover_pairs=[mixed], grid=SimpleNamespace(baseline="pick"))
+    text = "\n".join(handover_pair_lines(summary))
+    assert "pick" not in text and "| a → c | mikt | 2 | 3,000 | 2,300 | 77% | 2,000 | 1,900 | -100 |\n" in text
 
 
 @pytest.mark.parametrize("teachers", [1, 2])

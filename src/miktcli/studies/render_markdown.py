@@ -240,19 +240,23 @@ def handover_pair_lines(summary: StudySummary) -> list[str]:
     if not summary.handover_pairs:
         return []
     baseline = summary.grid.baseline
-    lines = [f"Per pair, as seed means: *kept* is the ratio of the seed means of *without* and *with*. *{baseline}, "
-             f"same windows*: the baseline from scratch on the same target, over the same 50k steps on each side of "
-             f"the step where the others drop their teachers. It drops nothing, so its change is how much the "
-             f"per-update return moves across those windows by itself.", "",
-             f"| pair | method | runs | with | without | kept | before | after | change | {baseline} runs | "
-             f"{baseline} before | {baseline} after | {baseline} change |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    control = any(h.baseline for h in summary.handover_pairs)  # the baseline trains from scratch
+    intro = "Per pair, as seed means: *kept* is the ratio of the seed means of *without* and *with*."
+    head = "| pair | method | runs | with | without | kept | before | after | change |"
+    if control:
+        intro += (f" *{baseline}*: the baseline from scratch on the same target, over the same 50k steps on each "
+                  f"side of the step where the others drop their teachers. It drops nothing, so its change is how "
+                  f"much the per-update return moves across those windows by itself.")
+        head += f" {baseline} runs | {baseline} before | {baseline} after | {baseline} change |"
+    lines = [intro, "", head, "|---" * head.count(" | ") + "|---|"]
     for h in summary.handover_pairs:
         kept = "—" if h.kept is None else f"{h.kept:.0%}"
-        base = (f"{h.baseline_before:,.0f} | {h.baseline_after:,.0f}" if h.baseline_runs else "— | —")
-        lines.append(f"| {h.pair} | {h.method} | {h.runs} | {h.with_teachers:,.0f} | {h.without_teachers:,.0f} | "
-                     f"{kept} | {h.before:,.0f} | {h.after:,.0f} | {h.change:+,.0f} | {h.baseline_runs} | {base} | "
-                     f"{_signed(h.baseline_change)} |")
+        row = (f"| {h.pair} | {h.method} | {h.runs} | {h.with_teachers:,.0f} | {h.without_teachers:,.0f} | {kept} | "
+               f"{h.before:,.0f} | {h.after:,.0f} | {h.change:+,.0f} |")
+        if control:
+            base = f"{h.baseline_before:,.0f} | {h.baseline_after:,.0f}" if h.baseline_runs else "— | —"
+            row += f" {h.baseline_runs} | {base} | {_signed(h.baseline_change)} |"
+        lines.append(row)
     return [*lines, ""]
 
 

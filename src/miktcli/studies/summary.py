@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from miktcli.methods import get_method
 from miktcli.registry.runs import Run
 from miktcli.stats.pairwise import compare
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key, file_slug
@@ -284,21 +285,24 @@ def summarise(grid: Grid, cell_runs: dict[str, str], run_of: RunOf) -> StudySumm
                  for record in run.card.result.get("slowdowns", [])]
     return StudySummary(grid, pairs, left_out, cells, teacher_versions(grid, {key: run for key, _, run in cells}),
                         handovers=handovers, slowdowns=slowdowns,
-                        handover_pairs=handovers_by_pair(pairs, grid.baseline, [f for _, f in handovers]))
+                        handover_pairs=handovers_by_pair(grid, pairs, [f for _, f in handovers]))
 
 
-def handovers_by_pair(pairs: list[PairSummary], baseline: str, figures: list[HandoverFigures]) -> list[PairHandover]:
-    """Each pair's methods that recorded hand-overs, as seed means beside the pair's baseline runs."""
+def handovers_by_pair(grid: Grid, pairs: list[PairSummary], figures: list[HandoverFigures]) -> list[PairHandover]:
+    """Each pair's methods that recorded hand-overs, as seed means, beside the pair's baseline runs when the
+    baseline trains from scratch (a baseline with teachers drops them too: no control, so no baseline runs)."""
+    baseline = grid.baseline
+    scratch = get_method(next(m.method for m in grid.methods if m.name == baseline)).trains_from_scratch
     by_run = {f.run: f for f in figures}
     out = []
     for pair in pairs:
-        base = next((m.runs for m in pair.methods if m.name == baseline), [])
+        base = next((m.runs for m in pair.methods if m.name == baseline), []) if scratch else []
         base_rows: list[list[dict[str, Any]]] | None = None
         for method in pair.methods:
             seeds = [by_run[r.id] for r in method.runs if r.id in by_run]
             if seeds:
                 base_rows = [r.read_metrics() for r in base] if base_rows is None else base_rows
-                out.append(pair_handover(pair.name, method.name, seeds, baseline, base_rows))
+                out.append(pair_handover(pair.name, method.name, seeds, baseline if scratch else "", base_rows))
     return out
 
 
