@@ -69,19 +69,25 @@ def test_a_failed_compile_is_an_error_naming_the_option(monkeypatch):
 
 @pytest.mark.slow
 @needs_compiler
-def test_past_the_recompile_limit_is_an_error_not_a_silent_eager_fallback(monkeypatch):
+def test_past_the_recompile_limit_is_an_error_not_a_silent_eager_fallback():
     def vpg_trainer(env: str, obs_dim: int, act_dim: int) -> PPOTrainer:
         config = PPOConfig(n_steps=128, minibatch_size=64, epochs=1, compile_loss=True)
         return PPOTrainer(GaussianActorCritic(obs_dim, act_dim), lambda: make_env(env), config, 128, seed=0)
 
     torch._dynamo.reset()  # forget the graphs earlier tests compiled
     first = vpg_trainer("hopper", 11, 3)
-    monkeypatch.setattr(torch._dynamo.config, "recompile_limit", 1)
-    next(first.run())  # one graph: within the limit
-    second = vpg_trainer("centipede-four", 97, 10)  # other shapes: a second graph of the same function
-    torch._dynamo.config.recompile_limit = 1  # `compiled` raised it for the new trainer; lower it again
-    with pytest.raises(MiktError, match="compile_loss: torch.compile failed"):
-        next(second.run())
+    # Set and put back by hand: monkeypatch's undo deletes the attribute (it is not in the module's __dict__),
+    # and a deleted dynamo setting is hidden, which broke every later compile in the same test process.
+    limit = torch._dynamo.config.recompile_limit
+    try:
+        torch._dynamo.config.recompile_limit = 1
+        next(first.run())  # one graph: within the limit
+        second = vpg_trainer("centipede-four", 97, 10)  # other shapes: a second graph of the same function
+        torch._dynamo.config.recompile_limit = 1  # `compiled` raised it for the new trainer; lower it again
+        with pytest.raises(MiktError, match="compile_loss: torch.compile failed"):
+            next(second.run())
+    finally:
+        torch._dynamo.config.recompile_limit = limit
 
 
 def test_auto_compiles_only_runs_long_enough_and_only_with_a_compiler(monkeypatch):
