@@ -16,7 +16,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from miktcli.methods import get_method
 from miktcli.stats import across_tasks
 from miktcli.studies.grid import Grid
 from miktcli.studies.summary import MethodSummary, StudySummary
@@ -139,7 +138,7 @@ def _baseline(summary: StudySummary) -> tuple[bool, dict[str, str], dict[str, Me
     """Whether the baseline trains from scratch, each pair's task, and each task's baseline runs (the first
     pair of the task with completed ones)."""
     grid = summary.grid
-    scratch = get_method(next(m.method for m in grid.methods if m.name == grid.baseline)).trains_from_scratch
+    scratch = grid.baseline_trains_from_scratch
     task_of = {p.name: (p.to if scratch else p.name) for p in grid.pairs}
     runs: dict[str, MethodSummary] = {}
     for pair in summary.pairs:

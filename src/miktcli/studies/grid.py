@@ -117,6 +117,11 @@ class Grid(BaseModel):
     _folder: Path | None = PrivateAttr(None)
 
     @property
+    def baseline_trains_from_scratch(self) -> bool:
+        """Whether the baseline has no teachers: then its runs are shared by every pair of a target."""
+        return not next(m for m in self.methods if m.name == self.baseline).uses_teachers
+
+    @property
     def folder(self) -> Path:
         return self._folder or Path.cwd()
 

@@ -11,7 +11,6 @@ from typing import Any
 
 import numpy as np
 
-from miktcli.methods import get_method
 from miktcli.registry.runs import Run
 from miktcli.stats.pairwise import compare
 from miktcli.studies.grid import Grid, MethodSpec, PairSpec, cell_key, file_slug
@@ -292,7 +291,7 @@ def handovers_by_pair(grid: Grid, pairs: list[PairSummary], figures: list[Handov
     """Each pair's methods that recorded hand-overs, as seed means, beside the pair's baseline runs when the
     baseline trains from scratch (a baseline with teachers drops them too: no control, so no baseline runs)."""
     baseline = grid.baseline
-    scratch = get_method(next(m.method for m in grid.methods if m.name == baseline)).trains_from_scratch
+    scratch = grid.baseline_trains_from_scratch
     by_run = {f.run: f for f in figures}
     out = []
     for pair in pairs:
