@@ -3,6 +3,7 @@
 import copy
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -52,6 +53,22 @@ def test_each_seed_s_update_is_its_update_alone_to_float_rounding(kind):
             assert torch.allclose(sa, sb, rtol=1e-3, atol=1e-9), key
     # the seeds really differ, so matching them one by one means something
     assert not torch.allclose(together[0].flat.flat, together[1].flat.flat)
+
+
+@pytest.mark.parametrize("kind", ["ppo", "mikt"])
+def test_the_lock_step_rollout_is_each_seed_s_rollout_alone_to_float_rounding(kind):
+    """One batched forward a step for every seed (the teachers once over all their rows), then each seed's
+    own noise, normaliser and envs: the actions a seed takes alone, up to the batched matmul's rounding."""
+    agents = [agent_for(kind, seed) for seed in range(3)]
+    alone, together = trainers(agents), trainers(agents)
+    collected = SeedsTogether(together).collect()
+    for trainer, (rollout, stats, wall) in zip(alone, collected, strict=True):
+        own, own_stats = trainer.collect()
+        assert np.allclose(rollout.actions, own.actions, atol=1e-6)
+        assert np.allclose(rollout.obs, own.obs, atol=1e-5)
+        assert stats["episodes_finished"] == own_stats["episodes_finished"] > 0  # episodes end inside it
+        assert wall > 0 and stats["time_inference"] > 0
+    assert not np.allclose(collected[0][0].actions, collected[1][0].actions)  # the seeds differ
 
 
 @pytest.mark.slow

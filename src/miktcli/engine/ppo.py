@@ -13,7 +13,6 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal, NamedTuple
 
 import gymnasium as gym
@@ -26,7 +25,7 @@ from miktcli.engine.adam import FusedAdam
 from miktcli.engine.flatparams import FlatParameters
 from miktcli.engine.nets import update_moments
 from miktcli.engine.policies import ActorCritic, gaussian_kl, gaussian_log_prob
-from miktcli.envs.mujoco_warnings import mujoco_warning_count
+from miktcli.engine.rollout import Rollout, RolloutCollector
 from miktcli.envs.vector import SyncEnvs
 from miktcli.errors import MiktError
 
@@ -192,17 +191,6 @@ def compute_gae(
     return advantages, advantages + values
 
 
-@dataclass
-class Rollout:
-    obs: np.ndarray  # (T, N, obs_dim) normalised, float32
-    actions: np.ndarray  # (T, N, act_dim) unclipped samples
-    rewards: np.ndarray  # (T, N) scaled
-    terminated: np.ndarray
-    dones: np.ndarray
-    final_obs: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)  # (t, i) -> normalised obs
-    last_obs: np.ndarray | None = None  # normalised obs after the last step
-
-
 def compiled(loss: Callable[..., Any]) -> Callable[..., Any]:
     """`loss` through torch.compile (shapes fixed: every full minibatch has the same). A compile that fails
     (no C++ compiler, an unsupported build) is an error naming the option, never a silent eager fallback."""
@@ -311,67 +299,18 @@ class PPOTrainer:
 
     # --- rollout ------------------------------------------------------------------------------------
     def collect(self) -> tuple[Rollout, dict[str, float]]:
-        cfg, envs, agent = self.config, self.envs, self.agent
-        T, N = cfg.n_steps, cfg.num_envs
-        obs_dim = envs.obs.shape[1]
-        act_dim = agent.log_std.shape[0]
-        ro = Rollout(
-            obs=np.empty((T, N, obs_dim), np.float32), actions=np.empty((T, N, act_dim), np.float32),
-            rewards=np.empty((T, N)), terminated=np.zeros((T, N)), dones=np.zeros((T, N)),
-        )
-        std = np.exp(agent.log_std.detach().numpy())
-        noise = self.rng.standard_normal((T, N, act_dim)).astype(np.float32) * std
-        normalizer = agent.obs_normalizer
-        # The per-step pieces over buffers made once per rollout (the same bits as the module's own paths).
-        fast_norm = normalizer.rollout(N)
-        obs_in = np.empty((N, obs_dim), np.float32)
-        actor = agent.rollout_actor(torch.from_numpy(obs_in))
-        scale_one = self.reward_scaler.scale_one if cfg.reward_scaling and N == 1 else None
-        t_env = t_inf = 0.0
-        finished: list[tuple[float, int]] = []
-        obs_raw = envs.obs
-        warnings_before = mujoco_warning_count()
+        collector = RolloutCollector(self)
+        actor = self.agent.rollout_actor(torch.from_numpy(collector.obs_in))
         clock = time.perf_counter
         # inference_mode, not no_grad: nothing made here reaches autograd (it all goes to numpy buffers), and
         # it skips view and version tracking, a measurable share of a step this small.
         with torch.inference_mode():
-            for t in range(T):
+            for _ in range(collector.steps):
                 t0 = clock()
-                fast_norm.update(obs_raw)
-                fast_norm.normalize_into(obs_raw, obs_in)
-                actions = np.add(actor().numpy(), noise[t], out=ro.actions[t])
-                ro.obs[t] = obs_in
-                t1 = clock()
-                step = envs.step(actions)
-                t2 = clock()
-                t_env += t2 - t1
-                if step.finished:
-                    dones = step.terminated | step.truncated
-                    ro.terminated[t], ro.dones[t] = step.terminated, dones
-                    for i, final in step.final_obs.items():
-                        ro.final_obs[(t, i)] = normalizer.normalize_np(final[None])[0]
-                    finished += step.finished
-                else:
-                    dones = step.terminated  # all False: nothing ended (the rows are zeros already)
-                if scale_one is not None:
-                    ro.rewards[t, 0] = scale_one(float(step.rewards[0]), bool(dones[0]))
-                else:
-                    ro.rewards[t] = self.reward_scaler(step.rewards, dones) if cfg.reward_scaling else step.rewards
-                obs_raw = step.obs
-                t_inf += t1 - t0
-        ro.last_obs = normalizer.normalize_np(obs_raw)
-        for ret, length in finished:
-            self.recent_returns.append(ret)
-            self.recent_lengths.append(length)
-        self.episodes += len(finished)
-        stats = {
-            "time_env": t_env, "time_inference": t_inf,
-            "episodes_finished": len(finished),
-            # A diverging simulation (MuJoCo's "unstable" warnings): counted here instead of a log file.
-            "sim_warnings": mujoco_warning_count() - warnings_before,
-            "episode_return_iter": float(np.mean([r for r, _ in finished])) if finished else float("nan"),
-        }
-        return ro, stats
+                collector.observe()
+                mean = actor().numpy()
+                collector.act(mean, clock() - t0)
+        return collector.finish()
 
     # --- advantages ---------------------------------------------------------------------------------
     def _values_and_targets(self, ro: Rollout) -> Minibatch:

@@ -18,9 +18,12 @@ much as the seeds one after another on these small networks (a 3-layer MLP, 5 se
 The numbers are a single-seed run's to float rounding, not bit for bit (a batched matmul sums in another
 order), so the card records the mode (RunConfig.seeds_together).
 
-The rollouts stay one seed after another with each agent's own rollout forward: under vmap the per-step
-forward of five two-teacher agents cost more than five plain ones (1.32 against 1.07 ms, measured
-2026-12-04), and the physics, most of a step, does not batch.
+The rollouts step in lock step: each step, every seed normalises its observation into its row of one
+(seeds, envs, obs) buffer, one forward computes every seed's action mean (the agent's rollout_actor with the
+parameters stacked, so a batched matmul a layer and the frozen teachers once over all the seeds' rows), then
+each seed samples with its own generator and steps its own envs. The physics, most of a step, stays one
+seed after another. (Under vmap this forward had cost more than five separate ones, 1.32 against 1.07 ms,
+measured 2026-12-04; the stacked one needs no vmap.)
 """
 
 from __future__ import annotations
@@ -29,11 +32,25 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 from torch.func import functional_call
 
 from miktcli.engine.ppo import Minibatch, PPOTrainer, compiled, flushing_denormals, update_metrics
+from miktcli.engine.rollout import Rollout, RolloutCollector
+
+
+class _RolloutActor(nn.Module):
+    """The agent's rollout_actor as a module call, so functional_call can swap in the stacked parameters
+    (the same `agent.` names as _TrainerLoss); the function it returns keeps views of them."""
+
+    def __init__(self, agent: nn.Module):
+        super().__init__()
+        self.agent = agent
+
+    def forward(self, obs: torch.Tensor) -> Callable[[], torch.Tensor]:
+        return self.agent.rollout_actor(obs)
 
 
 class _TrainerLoss(nn.Module):
@@ -76,6 +93,7 @@ class SeedsTogether:
         for row, trainer in enumerate(trainers):
             trainer.flat.rebind(self.params[row], self.grads[row])
         self._grads = self._gradient_function()
+        self._actor = _RolloutActor(trainers[0].agent)  # every seed's rollout forward at once
 
     def _gradient_function(self) -> Callable[..., Any]:
         lead = self.trainers[0]
@@ -112,6 +130,30 @@ class SeedsTogether:
             return dict(zip(leaves, grads, strict=True)), logs
 
         return gradient
+
+    # --- rollout ------------------------------------------------------------------------------------
+    def collect(self) -> list[tuple[Rollout, dict[str, float], float]]:
+        """One rollout a seed, in lock step with one batched forward a step; each seed's (rollout, stats,
+        its share of the wall time)."""
+        trainers, clock = self.trainers, time.perf_counter
+        start = clock()
+        envs = trainers[0].envs
+        stacked = np.empty((len(trainers), *envs.obs.shape), np.float32)
+        collectors = [RolloutCollector(t, stacked[s]) for s, t in enumerate(trainers)]
+        actor = functional_call(self._actor, self.param_views, (torch.from_numpy(stacked),))
+        share = 1.0 / len(trainers)
+        with torch.inference_mode():
+            for _ in range(collectors[0].steps):
+                t0 = clock()
+                for c in collectors:
+                    c.observe()
+                means = actor().numpy()
+                inference = (clock() - t0) * share
+                for c, mean in zip(collectors, means, strict=True):
+                    c.act(mean, inference)
+        results = [c.finish() for c in collectors]
+        wall = (clock() - start) * share
+        return [(rollout, stats, wall) for rollout, stats in results]
 
     # --- update -------------------------------------------------------------------------------------
     def update(self, batches: list[Minibatch]) -> list[dict[str, float]]:
@@ -160,11 +202,7 @@ class SeedsTogether:
             phases = {t.agent.phase(t.iteration / t.num_iterations) for t in trainers}
             if len(phases) > 1:  # one loss for all: the schedule must agree (it does for equal budgets)
                 raise RuntimeError(f"seeds trained together are in different phases: {sorted(phases)}")
-            collected = []
-            for t in trainers:
-                start = clock()
-                rollout, stats = t.collect()
-                collected.append((rollout, stats, clock() - start))
+            collected = self.collect()
             start = clock()
             with flushing_denormals(self.config.flush_denormal):
                 batches = [t._values_and_targets(rollout) for t, (rollout, _, _) in zip(trainers, collected,

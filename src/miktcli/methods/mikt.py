@@ -24,7 +24,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from miktcli.engine.adam import FusedAdam
-from miktcli.engine.nets import MLP, ObsNormalizer, linear
+from miktcli.engine.nets import MLP, ObsNormalizer, affine_into, linear, transposed
 from miktcli.engine.policies import LOG_2PI, TEACHER_FREE, ActorCritic, GaussianActorCritic, gaussian_kl, over_rows
 from miktcli.errors import MiktError
 from miktcli.methods.base import Method
@@ -437,42 +437,44 @@ class MiktActorCritic(ActorCritic):
         """`action_mean(obs)` for the rollout's fixed input, op for op as `embeddings`, `_teacher_z` and
         `_mixed` compute it (the same kernels, so the same bits; tests/test_mikt.py checks), into buffers made
         once per rollout. The mixing weights are taken now: they only change in the update. Per step this
-        saves the allocations and module calls of ~35 small ops (the MIKT rollout forward was 4-8× PPO's)."""
+        saves the allocations and module calls of ~35 small ops (the MIKT rollout forward was 4-8× PPO's).
+        With the parameters stacked over seeds (functional_call, miktcli.engine.together) `obs` is (S, N, in):
+        every seed's rows in one batched matmul a layer, the frozen teachers once over all of them."""
         if not self.teacher_active:
             return self.pi.rollout_forward(obs)
-        n = obs.shape[0]
+        n = obs.shape[:-1]  # the buffers' leading shape: (N,), or (S, N)
         embed = [enc.rollout_forward(obs) for enc in self.encoders]
         with torch.no_grad():
             weights = self._faded(torch.softmax(self.mix_logits_pi, -1))
         teachers = [_RolloutPreactivations(t.pi, n) for t in self.teachers]
-        lateral = ([[u.weight.detach().t() for u in us] for us in self.lateral_pi]
+        lateral = ([[transposed(u.weight) for u in us] for us in self.lateral_pi]
                    if self.lateral_pi is not None else None)
-        student = [(w.detach().t(), b.detach()) for w, b in self.pi.layer_params]
-        head_w, head_b = self.pi.head_params[0].detach().t(), self.pi.head_params[1].detach()
-        width = [w.shape[1] for w, _ in student]
-        lin, mixed = [torch.empty(n, h) for h in width], [torch.empty(n, h) for h in width]
-        proj = [[torch.empty(n, h) for h in width] for _ in teachers]
-        acc, term = [torch.empty(n, h) for h in width], [torch.empty(n, h) for h in width]
-        zeros = [torch.zeros(n, h) for h in width]
-        out = torch.empty(n, head_w.shape[1])
+        student = [(transposed(w), b.detach()) for w, b in self.pi.layer_params]
+        head_w, head_b = transposed(self.pi.head_params[0]), self.pi.head_params[1].detach()
+        width = [w.shape[-1] for w, _ in student]
+        lin, mixed = [torch.empty(*n, h) for h in width], [torch.empty(*n, h) for h in width]
+        proj = [[torch.empty(*n, h) for h in width] for _ in teachers]
+        acc, term = [torch.empty(*n, h) for h in width], [torch.empty(*n, h) for h in width]
+        zeros = [torch.zeros(*n, h) for h in width]
+        out = torch.empty(*n, head_w.shape[-1])
         # mixing = "shared": one source per layer, Σ_k z_k (as _teacher_z sums them), then mixed as one teacher
         shared = self.config.mixing == "shared" and len(teachers) > 1
-        summed = [torch.empty(n, h) for h in width] if shared else []
+        summed = [torch.empty(*n, h) for h in width] if shared else []
         k_teachers = 1 if shared else len(teachers)
-        p_student = weights[:, 0].unbind()
-        w_rows = [row.unbind() for row in weights.unbind()]
+        w_rows = [[_layer_weight(weights, j, k) for k in range(weights.shape[-1])] for j in range(len(width))]
+        p_student = [row[0] for row in w_rows]
 
         def run() -> torch.Tensor:
             tz = [t(e()) for t, e in zip(teachers, embed, strict=True)]
             if lateral is not None:
-                tz = [[torch.mm(z, u_t, out=buf) for z, u_t, buf in zip(zs, us, bufs, strict=True)]
+                tz = [[affine_into(z, u_t, None, buf) for z, u_t, buf in zip(zs, us, bufs, strict=True)]
                       for zs, us, bufs in zip(tz, lateral, proj, strict=True)]
             if shared:  # sum() starts at 0, as zeros + z_0 does (see below)
                 tz = [[_sum_into(buf, zero, layer) for buf, zero, layer in zip(summed, zeros, zip(*tz, strict=True),
                                                                               strict=True)]]
             x = obs
             for j, (w_t, b) in enumerate(student):
-                z = torch.addmm(b, x, w_t, out=lin[j])
+                z = affine_into(x, w_t, b, lin[j])
                 if k_teachers == 1:
                     x = torch.tanh_(torch.lerp(tz[0][j], z, p_student[j], out=mixed[j]))
                     continue
@@ -483,7 +485,7 @@ class MiktActorCritic(ActorCritic):
                 for k in range(1, k_teachers):
                     s.add_(torch.mul(tz[k][j], w[k + 1], out=term[j]))
                 x = torch.tanh_(torch.add(torch.mul(z, w[0], out=mixed[j]), s, out=mixed[j]))
-            return torch.addmm(head_b, x, head_w, out=out)
+            return affine_into(x, head_w, head_b, out)
 
         return run
 
@@ -563,16 +565,16 @@ class MiktActorCritic(ActorCritic):
 class _RolloutPreactivations:
     """`MLP.preactivations` of a frozen teacher stack into buffers made once (the rollout's batch size)."""
 
-    def __init__(self, net: MLP, n: int):
+    def __init__(self, net: MLP, rows: tuple[int, ...]):
         self.tanh = net.activation == "tanh"
         self.act_ = {"tanh": torch.tanh_, "relu": torch.relu_}[net.activation]
-        self.layers = [(w.detach().t(), b.detach()) for w, b in net.layer_params]
-        self.z = [torch.empty(n, w.shape[1]) for w, _ in self.layers]
-        self.h = [torch.empty(n, w.shape[1]) for w, _ in self.layers]
+        self.layers = [(transposed(w), b.detach()) for w, b in net.layer_params]
+        self.z = [torch.empty(*rows, w.shape[-1]) for w, _ in self.layers]
+        self.h = [torch.empty(*rows, w.shape[-1]) for w, _ in self.layers]
 
     def __call__(self, x: torch.Tensor) -> list[torch.Tensor]:
         for (w_t, b), z, h in zip(self.layers, self.z, self.h, strict=True):
-            torch.addmm(b, x, w_t, out=z)
+            affine_into(x, w_t, b, z)
             x = torch.tanh(z, out=h) if self.tanh else self.act_(h.copy_(z))
         return self.z
 
