@@ -207,7 +207,7 @@ def test_a_stop_that_comes_with_the_last_chunk_in_flight_still_stops_the_study()
     driver.ray = SimpleNamespace(wait=wait)
     driver.queue, driver.in_flight, driver.capacity, driver.progress = [], {"ref": "run1"}, 1, {}
     taken = []
-    driver._take_back = lambda ref, submit_next=True: taken.append((driver.in_flight.pop(ref), submit_next))
+    driver._take_back = lambda ref, submit_next=True: taken.append((driver.in_flight.pop(ref), submit_next)) or []
     before = signal.signal(signal.SIGTERM, _callers_handler)
     try:
         with pytest.raises(KeyboardInterrupt):

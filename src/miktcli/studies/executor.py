@@ -6,7 +6,8 @@ hands the unfinished ones to an executor, refreshes the report after every cell 
 
 - `studies.serial.SerialExecutor`: one after another in this process (a cell's seeds together when the
   grid says `seeds_together`);
-- `studies.ray_executor.RayExecutor`: in parallel on a local Ray instance or a cluster, in chunks.
+- `studies.ray_executor.RayExecutor`: in parallel on a local Ray instance or a cluster, in chunks (a cell's
+  seeds together in one task when the grid says `seeds_together`).
 
 A new backend implements `Executor` (a `session()` to hold around preparing and training, and `run()`), and
 nothing else changes: the CLI, the report and the resume logic stay the same.
@@ -24,6 +25,7 @@ from miktcli.registry.runs import Run, run_number
 from miktcli.studies.grid import Grid
 from miktcli.studies.report import Report
 from miktcli.studies.study import Study
+from miktcli.workflows.together import mark_together
 
 # A cell's states, in the order a cell passes them: `done` (completed before this session), `queued`,
 # `training` (started or resumed), `retrying` (its worker died; sent again), then `completed` or `failed`.
@@ -62,6 +64,22 @@ class CellEvent:
 
 
 Progress = Callable[[list[CellEvent]], None]  # every unfinished cell's event, called as often as it changes
+
+
+def training_units(cells: list[tuple[str, Run]], seeds_together: bool) -> list[list[tuple[str, Run]]]:
+    """What an executor trains at once: each unfinished cell alone, or with the grid's `seeds_together` a
+    cell's unfinished seeds (the same key but for the seed after the last "|"), in the cells' order. A group
+    not yet marked as trained together is marked (its cards name each other), so a resume finds it."""
+    unfinished = [(key, run) for key, run in cells if run.card.status != "completed"]
+    if not seeds_together:
+        return [[cell] for cell in unfinished]
+    groups: dict[str, list[tuple[str, Run]]] = {}
+    for key, run in unfinished:
+        groups.setdefault(key.rsplit("|", 1)[0], []).append((key, run))
+    for group in groups.values():
+        if len(group) > 1 and not all(run.card.seeds_together for _, run in group):
+            mark_together([run for _, run in group])
+    return list(groups.values())
 
 
 @runtime_checkable

@@ -32,10 +32,11 @@ from miktcli.errors import MiktError
 from miktcli.registry.files import deferred_interrupt, write_bytes_atomic
 from miktcli.registry.runs import Run, RunLock, open_run
 from miktcli.registry.teachers import resolve
-from miktcli.studies.executor import CellEvent, Progress
+from miktcli.studies.executor import CellEvent, Progress, training_units
 from miktcli.studies.grid import Grid
 from miktcli.studies.study import Study
 from miktcli.workflows.session import run_to_end
+from miktcli.workflows.together import train_transfers_together
 from miktcli.workflows.transfer import train_transfer_chunk
 
 CHUNK_ITERATIONS = 20  # iterations per task: ~40k steps, about a minute here; a lost worker costs at most this
@@ -80,23 +81,29 @@ def _maybe_fail_for_test(run_id: str, chunk: int, spec: str | None) -> None:
             os._exit(1)  # the worker process dies as if killed: no exception, no cleanup
 
 
-def train_chunk_task(run_id: str, run_files: dict[str, bytes], teacher_files: dict[str, tuple[bytes, str]],
-                     chunk: int, iterations: int, eval_episodes: int, fault: str | None = None) -> dict[str, bytes]:
-    """Train one chunk of a cell in a private temporary registry; return the run folder's files."""
+def train_chunk_task(run_ids: list[str], run_files: dict[str, dict[str, bytes]],
+                     teacher_files: dict[str, tuple[bytes, str]], chunk: int, iterations: int, eval_episodes: int,
+                     fault: str | None = None) -> dict[str, dict[str, bytes]]:
+    """Train one chunk of a cell (one run), or of a cell's seeds together, in a private temporary registry;
+    return each run folder's files."""
     torch.set_num_threads(1)
-    _maybe_fail_for_test(run_id, chunk, fault)
+    for run_id in run_ids:
+        _maybe_fail_for_test(run_id, chunk, fault)
     with tempfile.TemporaryDirectory(prefix="mikt-cell-") as tmp:
         registry = Path(tmp)
         for relative, (data, sha) in teacher_files.items():
             if hashlib.sha256(data).hexdigest() != sha:
                 raise MiktError(f"teacher file {relative} arrived damaged (sha256 mismatch)")
             write_bytes_atomic(registry / "teachers" / relative, data)
-        folder = registry / "runs" / run_id
-        for name, data in run_files.items():
-            write_bytes_atomic(folder / name, data)
-        run = open_run(registry, run_id)
-        run_to_end(train_transfer_chunk(run, registry, eval_episodes, max_iterations=iterations))
-        return _folder_files(folder)
+        for run_id in run_ids:
+            for name, data in run_files[run_id].items():
+                write_bytes_atomic(registry / "runs" / run_id / name, data)
+        runs = [open_run(registry, run_id) for run_id in run_ids]
+        if len(runs) == 1:
+            run_to_end(train_transfer_chunk(runs[0], registry, eval_episodes, max_iterations=iterations))
+        else:
+            run_to_end(train_transfers_together(runs, registry, eval_episodes, max_iterations=iterations))
+        return {run.id: _folder_files(run.path) for run in runs}
 
 
 # --- the driver -----------------------------------------------------------------------------------------
@@ -145,12 +152,15 @@ def stop_requests() -> Iterator[threading.Event]:
             raise KeyboardInterrupt
 
 
-def _teacher_payload(registry: Path, run: Run) -> dict[str, tuple[bytes, str]]:
+def _teacher_payload(registry: Path, runs: list[Run]) -> dict[str, tuple[bytes, str]]:
     payload = {}
-    for ref in run.card.teachers:
-        path = resolve(registry, ref.ref)
-        data = path.read_bytes()
-        payload[f"{ref.name}/{path.name}"] = (data, hashlib.sha256(data).hexdigest())
+    for run in runs:
+        for ref in run.card.teachers:
+            path = resolve(registry, ref.ref)
+            relative = f"{ref.name}/{path.name}"
+            if relative not in payload:  # a cell's seeds share their teachers: each file sent once
+                data = path.read_bytes()
+                payload[relative] = (data, hashlib.sha256(data).hexdigest())
     return payload
 
 
@@ -262,78 +272,94 @@ class RayDriver:
     """Sends the cells' chunks to Ray, at most one per CPU of the cluster, and takes back what returns: a
     chunk's files are written back and the cell's next chunk sent; a chunk whose worker died is sent again
     (up to MAX_ATTEMPTS tries); a cell whose chunk raised, or whose workers kept dying, fails alone. The
-    driver holds every cell's lock from the start, so no local process trains them meanwhile."""
+    driver holds every cell's lock from the start, so no local process trains them meanwhile.
 
-    def __init__(self, ray, registry: Path, cells: list[tuple[str, Run]], *, capacity: int, eval_episodes: int,
-                 chunk_iterations: int):
+    What one task trains is a *unit*: one cell, or with the grid's `seeds_together` a cell's unfinished
+    seeds (studies.executor.training_units), which go and come back together and end together."""
+
+    def __init__(self, ray, registry: Path, units: list[list[tuple[str, Run]]], *, capacity: int,
+                 eval_episodes: int, chunk_iterations: int):
         self.ray, self.registry = ray, registry
         self.eval_episodes, self.chunk_iterations, self.capacity = eval_episodes, chunk_iterations, capacity
         self.task = ray.remote(num_cpus=1, max_retries=0)(train_chunk_task)
         self.system_errors = tuple(getattr(ray.exceptions, name) for name in (
             "WorkerCrashedError", "NodeDiedError", "ObjectLostError", "RaySystemError", "OwnerDiedError",
             "LocalRayletDiedError") if hasattr(ray.exceptions, name))
-        pending = [(key, run) for key, run in cells if run.card.status != "completed"]
+        # a unit is named by its first run's id; its runs train, fail and end together
+        self.units = {unit[0][1].id: [run.id for _, run in unit] for unit in units if unit}
         self.progress = {run.id: CellEvent(key, run.id, run.card.total_steps, steps=run.card.steps_done)
-                         for key, run in pending}
-        self.runs = {run.id: run for _, run in pending}
-        self.chunks = {run_id: 0 for run_id in self.runs}  # chunks handed back, per cell, in this session
+                         for unit in units for key, run in unit}
+        self.runs = {run.id: run for unit in units for _, run in unit}
+        self.chunks = {unit_id: 0 for unit_id in self.units}  # chunks handed back, per unit, in this session
         self.locks: dict[str, RunLock] = {}
-        self.in_flight: dict[Any, str] = {}  # task reference → run id
-        self.queue = list(self.runs)
+        self.in_flight: dict[Any, str] = {}  # task reference → unit id
+        self.queue = list(self.units)
 
     def lock_all(self) -> None:
         for run_id, run in self.runs.items():
             self.locks[run_id] = RunLock(run).acquire()
 
-    def _submit(self, run_id: str) -> None:
-        run = open_run(self.registry, run_id)
-        if run.card.status != "running":  # in flight from now on (`mikt runs` in the meantime says so)
-            run.save_card(status="running")
-        self.runs[run_id] = run
-        ref = self.task.remote(run_id, _folder_files(run.path), _teacher_payload(self.registry, run),
-                               self.chunks[run_id], self.chunk_iterations, self.eval_episodes,
-                               os.environ.get(FAULT_ENV))
-        self.in_flight[ref] = run_id
-        p = self.progress[run_id]
-        p.attempts += 1
-        if p.state == "queued":
-            p.state = "training"
+    def _submit(self, unit_id: str) -> None:
+        run_ids = self.units[unit_id]
+        for run_id in run_ids:
+            run = open_run(self.registry, run_id)
+            if run.card.status != "running":  # in flight from now on (`mikt runs` in the meantime says so)
+                run.save_card(status="running")
+            self.runs[run_id] = run
+        runs = [self.runs[run_id] for run_id in run_ids]
+        ref = self.task.remote(run_ids, {run.id: _folder_files(run.path) for run in runs},
+                               _teacher_payload(self.registry, runs), self.chunks[unit_id], self.chunk_iterations,
+                               self.eval_episodes, os.environ.get(FAULT_ENV))
+        self.in_flight[ref] = unit_id
+        for run_id in run_ids:
+            p = self.progress[run_id]
+            p.attempts += 1
+            if p.state == "queued":
+                p.state = "training"
 
-    def _end(self, run_id: str, state: str, error: str | None = None) -> CellEvent:
-        p = self.progress[run_id]
-        p.state, p.error = state, error
-        if state == "failed":
-            self.runs[run_id].save_card(status="failed", error=error)
-        self.locks.pop(run_id).release()
-        return p
+    def _end(self, unit_id: str, state: str, error: str | None = None) -> list[CellEvent]:
+        ended = []
+        for run_id in self.units[unit_id]:
+            p = self.progress[run_id]
+            p.state, p.error = state, error
+            if state == "failed":
+                self.runs[run_id].save_card(status="failed", error=error)
+            self.locks.pop(run_id).release()
+            ended.append(p)
+        return ended
 
-    def _take_back(self, ref, submit_next: bool = True) -> CellEvent | None:
-        """What a finished task means for its cell: the cell's progress when the cell ended, else None. With
-        submit_next False (the study is stopping) the cell's next chunk, or a retry, is not sent."""
-        run_id = self.in_flight.pop(ref)
-        p = self.progress[run_id]
+    def _take_back(self, ref, submit_next: bool = True) -> list[CellEvent]:
+        """What a finished task means for its unit: the progress of its cells when they ended, else []. With
+        submit_next False (the study is stopping) the unit's next chunk, or a retry, is not sent."""
+        unit_id = self.in_flight.pop(ref)
+        run_ids = self.units[unit_id]
+        first = self.progress[run_ids[0]]
         try:
             files = self.ray.get(ref)
         except self.system_errors as err:
-            if p.attempts < MAX_ATTEMPTS:
-                p.state = "retrying"  # again from the last folder handed back: the driver's copy
+            if first.attempts < MAX_ATTEMPTS:
+                for run_id in run_ids:
+                    self.progress[run_id].state = "retrying"  # again from the last folders handed back
                 if submit_next:
-                    self._submit(run_id)
-                return None
-            return self._end(run_id, "failed", f"workers died {MAX_ATTEMPTS} times under one chunk: {err}")
+                    self._submit(unit_id)
+                return []
+            return self._end(unit_id, "failed", f"workers died {MAX_ATTEMPTS} times under one chunk: {err}")
         except self.ray.exceptions.RayTaskError as err:
             cause = err.cause if isinstance(getattr(err, "cause", None), BaseException) else err
-            return self._end(run_id, "failed", f"{type(cause).__name__}: {cause}")
-        _write_back(self.runs[run_id], files)
-        status = _update_progress(p, files)
-        self.chunks[run_id] += 1
-        p.attempts = 0
-        if status == "completed":
-            return self._end(run_id, "completed")
-        p.state = "training"
+            return self._end(unit_id, "failed", f"{type(cause).__name__}: {cause}")
+        statuses = []
+        for run_id in run_ids:
+            _write_back(self.runs[run_id], files[run_id])
+            statuses.append(_update_progress(self.progress[run_id], files[run_id]))
+            self.progress[run_id].attempts = 0
+        self.chunks[unit_id] += 1
+        if all(status == "completed" for status in statuses):
+            return self._end(unit_id, "completed")
+        for run_id in run_ids:
+            self.progress[run_id].state = "training"
         if submit_next:
-            self._submit(run_id)
-        return None
+            self._submit(unit_id)
+        return []
 
     def run(self, on_progress: Progress | None) -> Iterator[CellEvent]:
         """Raises KeyboardInterrupt, between two waits, once Ctrl-C or SIGTERM asked the study to stop."""
@@ -345,9 +371,7 @@ class RayDriver:
                     on_progress(list(self.progress.values()))
                 done, _ = self.ray.wait(list(self.in_flight), num_returns=1, timeout=WAIT_S)
                 if done:  # taken back even when a stop came meanwhile: the chunk it trained is kept
-                    ended = self._take_back(done[0], submit_next=not stop.is_set())
-                    if ended is not None:
-                        yield ended
+                    yield from self._take_back(done[0], submit_next=not stop.is_set())
             if stop.is_set():  # also when it came with the last chunk in flight, or while the caller held a cell
                 raise KeyboardInterrupt
             if on_progress:
@@ -369,16 +393,17 @@ class RayDriver:
 
 def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: int | None, address: str | None,
                      eval_episodes: int, chunk_iterations: int = CHUNK_ITERATIONS,
-                     on_progress: Progress | None = None) -> Iterator[CellEvent]:
-    """Train the unfinished `cells` on Ray; yields each cell's progress when it completes or fails.
+                     on_progress: Progress | None = None, seeds_together: bool = False) -> Iterator[CellEvent]:
+    """Train the unfinished `cells` on Ray; yields each cell's progress when it completes or fails. With
+    `seeds_together`, a cell's unfinished seeds train in one task as one batched problem, a chunk at a time.
 
     Starts a local Ray instance with `workers` CPUs (and stops it after) unless `address` names a running
     cluster, or a `ray_session` around the call is connected already. Ctrl-C cancels the tasks and leaves
     every cell resumable from its last handed-back chunk."""
     with ray_session(workers, address) as ray:
         capacity = max(1, int(ray.cluster_resources().get("CPU", workers or 1)))
-        driver = RayDriver(ray, registry, cells, capacity=capacity, eval_episodes=eval_episodes,
-                           chunk_iterations=chunk_iterations)
+        driver = RayDriver(ray, registry, training_units(cells, seeds_together), capacity=capacity,
+                           eval_episodes=eval_episodes, chunk_iterations=chunk_iterations)
         try:
             driver.lock_all()
             yield from driver.run(on_progress)
@@ -392,7 +417,8 @@ def run_cells_on_ray(registry: Path, cells: list[tuple[str, Run]], *, workers: i
 
 class RayExecutor:
     """The cells on Ray (studies.executor.Executor): a local instance with `workers` CPUs, or the cluster at
-    `address`, one seed a task, in chunks of `chunk_iterations`."""
+    `address`, one seed a task (or, with the grid's `seeds_together`, a cell's seeds in one task), in chunks
+    of `chunk_iterations`."""
 
     def __init__(self, workers: int | None, address: str | None, eval_episodes: int,
                  chunk_iterations: int = CHUNK_ITERATIONS):
@@ -400,9 +426,7 @@ class RayExecutor:
         self.eval_episodes, self.chunk_iterations = eval_episodes, chunk_iterations
 
     def refuses(self, grid: Grid) -> str | None:
-        if grid.seeds_together:
-            return "seeds_together trains a cell's seeds in one process; the Ray executor trains one seed a task"
-        return None
+        return None  # every grid trains here
 
     def session(self) -> AbstractContextManager[object]:
         # connected before any run folder is created: a missing extra or an absent cluster is one line
@@ -412,4 +436,4 @@ class RayExecutor:
             ) -> Iterator[CellEvent]:
         return run_cells_on_ray(study.registry, cells, workers=self.workers, address=self.address,
                                 eval_episodes=self.eval_episodes, chunk_iterations=self.chunk_iterations,
-                                on_progress=on_progress)
+                                on_progress=on_progress, seeds_together=study.grid.seeds_together)

@@ -7,10 +7,9 @@ from contextlib import AbstractContextManager, nullcontext
 from typing import Any
 
 from miktcli.registry.runs import Run, open_run
-from miktcli.studies.executor import CellEvent, Progress
+from miktcli.studies.executor import CellEvent, Progress, training_units
 from miktcli.studies.grid import Grid
 from miktcli.studies.study import Study
-from miktcli.workflows.together import mark_together
 
 Train = Callable[[list[Run]], Any]  # trains and finishes runs: one, or a cell's seeds together
 
@@ -33,18 +32,8 @@ class SerialExecutor:
 
     def run(self, study: Study, cells: list[tuple[str, Run]], on_progress: Progress | None = None
             ) -> Iterator[CellEvent]:
-        unfinished = [(key, run) for key, run in cells if run.card.status != "completed"]
-        if not study.grid.seeds_together:
-            for cell in unfinished:
-                yield from self._train(study, [cell])
-            return
-        groups: dict[str, list[tuple[str, Run]]] = {}
-        for key, run in unfinished:  # a cell's seeds: the same key but for the seed after the last "|"
-            groups.setdefault(key.rsplit("|", 1)[0], []).append((key, run))
-        for group in groups.values():
-            if len(group) > 1 and not all(run.card.seeds_together for _, run in group):
-                mark_together([run for _, run in group])
-            yield from self._train(study, group)
+        for unit in training_units(cells, study.grid.seeds_together):
+            yield from self._train(study, unit)
 
     def _train(self, study: Study, cells: list[tuple[str, Run]]) -> Iterator[CellEvent]:
         for key, run in cells:

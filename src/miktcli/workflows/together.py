@@ -63,10 +63,13 @@ def together_group(registry: Path, run: Run) -> list[Run]:
     return group
 
 
-def train_transfers_together(runs: list[Run], registry: Path,
-                             eval_episodes: int) -> Generator[Event, None, list[dict[str, Any]]]:
+def train_transfers_together(runs: list[Run], registry: Path, eval_episodes: int, max_iterations: int | None = None
+                             ) -> Generator[Event, None, list[dict[str, Any]] | None]:
     """Train `runs` (one cell's seeds) to their end together, then evaluate and save each student. A group
-    stopped between two seeds' checkpoints resumes with the seeds behind trained alone up to the others."""
+    stopped between two seeds' checkpoints resumes with the seeds behind trained alone up to the others.
+    With `max_iterations`, at most that many iterations together (a study on Ray trains a group in such
+    chunks, as train_transfer_chunk does a run): if that does not reach the end, return None, every run
+    resumable from its checkpoint."""
     with ExitStack() as stack:
         jobs = [stack.enter_context(Job(run, registry)) for run in runs]
         for job in jobs:
@@ -78,13 +81,16 @@ def train_transfers_together(runs: list[Run], registry: Path,
                     yield from job.record(metrics)
                     if job.trainer.iteration >= furthest:
                         break
-        if len(jobs) > 1:
-            for rows in SeedsTogether([job.trainer for job in jobs]).run():
-                for job, metrics in zip(jobs, rows, strict=True):
-                    yield from job.record(metrics)
-        else:
-            for metrics in jobs[0].trainer.run():
-                yield from jobs[0].record(metrics)
+        together = SeedsTogether([job.trainer for job in jobs]).run() if len(jobs) > 1 else (
+            [metrics] for metrics in jobs[0].trainer.run())
+        done = 0
+        for rows in together:
+            for job, metrics in zip(jobs, rows, strict=True):
+                yield from job.record(metrics)
+            done += 1
+            lead = jobs[0].trainer
+            if max_iterations is not None and done >= max_iterations and lead.iteration < lead.num_iterations:
+                return None
         results = []
         for job in jobs:
             yield Phase("evaluate", f"{job.run.id}, {eval_episodes} episodes")
