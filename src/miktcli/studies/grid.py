@@ -109,7 +109,7 @@ class Grid(BaseModel):
     compile_loss: bool = Field(False, description="every cell's PPO loss through torch.compile (see --compile)")
     seeds_together: bool = Field(False, description="train each cell's seeds in one process as one batched "
                                  "problem (mikt transfer --seeds): the same distribution, not the same bits; "
-                                 "serial studies only (no --workers)")
+                                 "on Ray (--workers, --address) a cell's seeds are one task")
     pairs: list[PairSpec] = Field(min_length=1)
     methods: list[MethodSpec] = Field(min_length=1)
     report: list[ReportRequest] = Field(default_factory=list, description="sections after the standard ones")
