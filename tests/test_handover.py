@@ -234,6 +234,28 @@ def test_a_run_records_both_sides_of_the_hand_over_and_keeps_the_checkpoint_befo
 
 
 @pytest.mark.slow
+def test_eval_handover_measures_the_drop_again_as_training_did_and_with_more_episodes(registry, teacher):
+    source = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE, "--handover", "fold",
+                             "--json").stdout)
+    again = json.loads(mikt("eval", source["run"], "--handover", "--episodes", 2, "--json").stdout)
+    recorded = source["handover"]
+    assert again["at_step"] == recorded["at_step"] == 6144 and again["handover"] == "fold"
+    # the same checkpoint, hand-over, seeds and episodes: the card's numbers
+    for side in ("with_teachers", "without_teachers", "kept_fraction"):
+        assert again[side] == recorded[side], side
+    assert again["recorded"] == recorded
+    more = json.loads(mikt("eval", source["run"], "--handover", "--episodes", 5, "--json").stdout)
+    assert more["with_teachers"]["episodes"] == more["without_teachers"]["episodes"] == 5
+    line = mikt("eval", source["run"], "--handover", "--episodes", 2).stdout
+    assert "with the teachers" in line and "kept" in line and "recorded in training: 2 episodes" in line
+    assert "cannot be combined with --handover" in mikt("eval", source["run"], "--handover", "--with-teacher",
+                                                        code=2).output
+    ppo = json.loads(mikt("transfer", "--to", "hopper", "--method", "vpg", "--steps", 2048, "--eval-episodes", 1,
+                          "--json").stdout)["run"]
+    assert "has no teachers" in mikt("eval", ppo, "--handover", code=1).output
+
+
+@pytest.mark.slow
 def test_a_branch_starts_from_the_kept_checkpoint_and_hands_over_its_own_way(registry, teacher):
     source = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", *SHORT_SCHEDULE, "--json").stdout)
     branch = json.loads(mikt("transfer", "--branch", source["run"], "--at", "before-teacher-free",

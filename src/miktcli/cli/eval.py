@@ -22,6 +22,8 @@ Examples:
   mikt eval run3 --with-teacher
 
   mikt eval run3 --render-offscreen --video run3.mp4     # every episode, back to back, in real time
+
+  mikt eval run3 --handover --episodes 50      # the hand-over at the teacher drop, measured again
 """
 
 
@@ -41,6 +43,10 @@ def eval_command(
                              help="Seed of the first episode; episode i uses seed + i."),
     deterministic: bool = typer.Option(True, "--deterministic/--stochastic", help="Mean action or sampled."),
     with_teacher: bool = typer.Option(False, "--with-teacher", help="Runs: evaluate the student with its teacher."),
+    handover: bool = typer.Option(False, "--handover", help="Runs with teachers: the hand-over at the drop again, "
+                                  "from the checkpoint kept just before it: the mixed policy, then the run's "
+                                  "hand-over and the teacher-free student, on the same --episodes (the run's "
+                                  "own evaluation seeds, deterministic)."),
     render_offscreen: bool = typer.Option(False, "--render-offscreen", help="Write an MP4 of every episode, back "
                                           "to back, and a PNG poster."),
     video: Path = typer.Option(None, "--video", help="MP4 path (default: TARGET-eval.mp4); implies rendering."),
@@ -55,6 +61,15 @@ def eval_command(
     from miktcli.workflows.evaluate import load_policy
 
     setup_torch()
+    if handover:
+        clashes = [flag for flag, on in (("--with-teacher", with_teacher), ("--render-offscreen", render_offscreen),
+                                         ("--video", video is not None), ("--stochastic", not deterministic),
+                                         ("--seed", seed != 0)) if on]
+        if clashes:
+            raise typer.BadParameter(f"{clashes[0]} cannot be combined with --handover (it measures the run's own "
+                                     "deterministic evaluation episodes)", param_hint="'--handover'")
+        _handover(registry, target, episodes, as_json)
+        return
     if target == "last":  # name the newest run, so its video file and the summary say which run it was
         from miktcli.registry.runs import open_run
 
@@ -106,6 +121,25 @@ def eval_command(
              f"({summary['speed_mean']:.2f} m/s)" if "distance_mean" in summary else "")
     print_data(f"{label} on {env_name}: return {summary['return_mean']:.1f} ± {summary['return_std']:.1f}, "
                f"length {summary['length_mean']:.0f} ± {summary['length_std']:.0f}{moved} over {episodes} episodes")
+
+
+def _handover(registry: Path, target: str, episodes: int, as_json: bool) -> None:
+    from miktcli.workflows.evaluate import measure_handover
+
+    err.print(f"evaluating {target} at the teacher drop with and without the teachers: {episodes} episode(s) each")
+    res = measure_handover(registry, target, episodes)
+    if as_json:
+        print_json(res)
+        return
+    mixed, alone, kept = res["with_teachers"], res["without_teachers"], res["kept_fraction"]
+    print_data(f"{res['run']} at the drop ({res['at_step']:,} steps, hand-over {res['handover']}) on {res['env']}, "
+               f"{episodes} episodes: with the teachers {mixed['return_mean']:.1f} ± {mixed['return_std']:.1f}, "
+               f"without {alone['return_mean']:.1f} ± {alone['return_std']:.1f}, kept "
+               + ("n/a (the mixed policy's return is not positive)" if kept is None else f"{100 * kept:.1f} %"))
+    recorded = res["recorded"]
+    if recorded and recorded.get("kept_fraction") is not None:
+        print_data(f"recorded in training: {recorded['with_teachers']['episodes']} episodes, kept "
+                   f"{100 * recorded['kept_fraction']:.1f} %")
 
 
 def _record(ev, show, video: Path) -> Path:

@@ -7,13 +7,21 @@ from pathlib import Path
 from typing import NamedTuple
 
 from miktcli.engine.episodes import evaluate_policy, evaluation_summary  # noqa: F401 - the workflows' names
-from miktcli.engine.policies import ActorCritic
+from miktcli.engine.policies import TEACHER_FREE, ActorCritic
 from miktcli.errors import MiktError
 from miktcli.methods import get_method
 from miktcli.registry.carried import ResolvedEnv, resolve_teacher_env
 from miktcli.registry.runs import RUN_TARGET_RE, open_run
 from miktcli.registry.teachers import load_policy_file, load_teacher
-from miktcli.workflows.session import agent_from_checkpoint, run_env
+from miktcli.workflows.session import (
+    EVAL_SEED_OFFSET,
+    agent_at_checkpoint,
+    agent_from_checkpoint,
+    evaluate_handover,
+    run_env,
+)
+
+DROP_CHECKPOINT = f"before-{TEACHER_FREE}"  # kept just before the teacher drop (Job._phase_change)
 
 
 class LoadedPolicy(NamedTuple):
@@ -62,3 +70,28 @@ def load_policy(registry: Path, target: str, with_teacher: bool = False) -> Load
     env = resolve_teacher_env(teacher.card, teacher.carried, "cannot evaluate")
     return LoadedPolicy(teacher.policy, env.name, _label(teacher.card.ref, env), teacher.card.clip_actions_for_env)
 
+
+
+def measure_handover(registry: Path, run_id: str, episodes: int) -> dict:
+    """The hand-over at the teacher drop measured again, on `episodes` evaluation episodes: from the run's
+    checkpoint kept just before the drop, the mixed policy, then the run's own hand-over and the teacher-free
+    student, as training measured it (the same function, seeds and actions), so with the run's own episode
+    count the numbers are the card's. More episodes narrow a 10-episode record: the first episodes are the
+    card's, the rest continue its seeds."""
+    run = open_run(registry, run_id)
+    method = get_method(run.card.method)
+    if method.with_teachers is None:
+        raise MiktError(f"run '{run.id}' ({run.card.method}) has no teachers, so no hand-over")
+    kept = run.kept_checkpoints()
+    if DROP_CHECKPOINT not in kept:
+        raise MiktError(f"run '{run.id}' kept no checkpoint '{DROP_CHECKPOINT}'" +
+                        (f"; it kept: {', '.join(kept)}" if kept else ""),
+                        hint="a run keeps it when it passes the drop; a study's snapshots carry no checkpoints")
+    env = run_env(run, "cannot evaluate")
+    agent, ckpt = agent_at_checkpoint(run, registry, env.spec, run.kept_checkpoint_path(DROP_CHECKPOINT))
+    iterations = max(1, run.card.total_steps // run.card.config.ppo.batch_size)  # as PPOTrainer counts them
+    agent.restore_progress((ckpt.iteration - 1) / iterations)  # where training had the schedule
+    record = evaluate_handover(agent, method, env.name, episodes, EVAL_SEED_OFFSET + run.card.seed,
+                               run.card.config.ppo.clip_actions_for_env, ckpt.iteration / iterations)
+    return {"run": run.id, "env": env.name, "handover": (run.card.config.options or {}).get("handover"),
+            "at_step": ckpt.steps, "episodes": episodes, **record, "recorded": run.card.result.get("handover")}

@@ -232,28 +232,36 @@ class Job:
     def _evaluate_handover(self, upcoming: int) -> dict[str, Any]:
         """The deterministic return of the mixed policy just before the drop and of the teacher-free student
         right after the hand-over, from the same weights and on the same evaluation episodes."""
-        agent, trainer = self.agent, self.trainer
-        clip, seed = self.config.clip_actions_for_env, EVAL_SEED_OFFSET + self.run.card.seed
-        rng = torch.random.get_rng_state()  # evaluation seeds torch; training's own generators are untouched
-        try:
-            with torch.no_grad():
-                mixed = evaluation_summary(copy.deepcopy(agent), self.env.name, self.eval_episodes, seed, clip)
-                # the hand-over itself (what the next iteration's schedule step would do), then the student
-                agent.set_progress(upcoming / trainer.num_iterations)
-                alone = evaluation_summary(self.method.student(agent), self.env.name, self.eval_episodes, seed,
-                                           clip)
-        finally:
-            torch.random.set_rng_state(rng)
-        kept = alone["return_mean"] / mixed["return_mean"] if mixed["return_mean"] > 0 else None
-        record = {"at_step": trainer.global_step, "with_teachers": mixed, "without_teachers": alone,
-                  "kept_fraction": kept}
-        details = agent.handover_details()
-        return {**record, "fit": details} if details else record
+        trainer = self.trainer
+        record = evaluate_handover(self.agent, self.method, self.env.name, self.eval_episodes,
+                                   EVAL_SEED_OFFSET + self.run.card.seed, self.config.clip_actions_for_env,
+                                   upcoming / trainer.num_iterations)
+        return {"at_step": trainer.global_step, **record}
 
     @property
     def final_return(self) -> float | None:
         returns = self.trainer.recent_returns
         return float(sum(returns) / len(returns)) if returns else None
+
+
+def evaluate_handover(agent: ActorCritic, method, env_name: str, episodes: int, seed: int, clip: bool,
+                      upcoming_fraction: float) -> dict[str, Any]:
+    """Both sides of the drop on `agent` as it is just before it: the mixed policy's deterministic return, then
+    the hand-over itself (`agent` moved on to `upcoming_fraction`, what the next iteration's schedule step
+    does, so a fold changes its weights) and the teacher-free student's, on the same `episodes` from `seed`.
+    torch's global generator is put back: training's own generators are untouched."""
+    rng = torch.random.get_rng_state()
+    try:
+        with torch.no_grad():
+            mixed = evaluation_summary(copy.deepcopy(agent), env_name, episodes, seed, clip)
+            agent.set_progress(upcoming_fraction)
+            alone = evaluation_summary(method.student(agent), env_name, episodes, seed, clip)
+    finally:
+        torch.random.set_rng_state(rng)
+    kept = alone["return_mean"] / mixed["return_mean"] if mixed["return_mean"] > 0 else None
+    record = {"with_teachers": mixed, "without_teachers": alone, "kept_fraction": kept}
+    details = agent.handover_details()
+    return {**record, "fit": details} if details else record
 
 
 def continued_code_history(history: list[CodeSegment], step: int) -> list[CodeSegment]:
@@ -278,13 +286,19 @@ def build_agent(run: Run, registry: Path, spec) -> ActorCritic:
                         method.parse_options(cfg.options))
 
 
-def agent_from_checkpoint(run: Run, registry: Path, spec) -> ActorCritic:
-    """A run's agent on `spec` with the weights of its last checkpoint (for evaluation, not for training)."""
+def agent_from_checkpoint(run: Run, registry: Path, spec, path: Path | None = None) -> ActorCritic:
+    """A run's agent on `spec` with the weights of its last checkpoint, or of the one at `path` (a kept
+    checkpoint), for evaluation, not for training."""
+    return agent_at_checkpoint(run, registry, spec, path)[0]
+
+
+def agent_at_checkpoint(run: Run, registry: Path, spec, path: Path | None = None) -> tuple[ActorCritic, Any]:
+    """agent_from_checkpoint, and the checkpoint's card (its iteration and steps)."""
     agent = build_agent(run, registry, spec)
-    _, tensors = run.load_checkpoint()
+    ckpt, tensors = run.load_checkpoint(path)
     state = {k[len("agent."):]: v for k, v in tensors.items() if k.startswith("agent.")}
     problem = state_misfit(agent, state)
     if problem:
-        raise MiktError(f"{run.checkpoint_path}: {problem}")
+        raise MiktError(f"{path or run.checkpoint_path}: {problem}")
     agent.load_state_dict(complete_state(agent, state))
-    return agent
+    return agent, ckpt
