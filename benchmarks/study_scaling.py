@@ -1,10 +1,14 @@
 """Study throughput: cells per hour of the same tiny grid, serial (in process) against Ray with N workers.
 
     python benchmarks/study_scaling.py --workers 1 2 [--cells 8] [--steps 20480] [--json results/study-scaling.json]
+    python benchmarks/study_scaling.py --seeds-together 5 --workers 2 [--json results/study-scaling-together.json]
 
 Each configuration trains the same grid (centipede-four from scratch, `--cells` seeds of `--steps` steps) in a
 fresh registry, one after another in this process; the table gives wall time, cells per hour, the speed-up
-over serial and the efficiency (speed-up / workers). Needs `pip install -e .[ray]`. Measure on a quiet machine.
+over serial and the efficiency (speed-up / workers). With `--seeds-together S` the grid is PPO from scratch on
+centipede-four and centipede-six, S seeds each (two cells of S seeds), trained on Ray with N workers one seed a
+task against the same grid with `seeds_together = true` (a cell's seeds one task); the speed-up is over one
+seed a task. Needs `pip install -e .[ray]`. Measure on a quiet machine.
 """
 
 from __future__ import annotations
@@ -20,15 +24,16 @@ import time
 from pathlib import Path
 
 
-def grid_text(cells: int, steps: int) -> str:
+def grid_text(cells: int, steps: int, targets: tuple[str, ...] = ("centipede-four",), together: bool = False) -> str:
+    pairs = "".join(f'[[pairs]]\nfrom = ["none"]\nto = "{target}"\n' for target in targets)
     return (f'name = "scaling"\nsteps = {steps}\nseeds = {list(range(cells))}\neval_episodes = 1\n'
-            '[[pairs]]\nfrom = ["none"]\nto = "centipede-four"\n[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+            f'seeds_together = {str(together).lower()}\n{pairs}[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
 
 
-def timed_study(cells: int, steps: int, workers: int | None) -> float:
+def timed_study(text: str, workers: int | None) -> float:
     with tempfile.TemporaryDirectory() as tmp:
         grid = Path(tmp) / "grid.toml"
-        grid.write_text(grid_text(cells, steps))
+        grid.write_text(text)
         command = [sys.executable, "-m", "miktcli", "study", str(grid), "--out", str(Path(tmp) / "out"),
                    "--registry", str(Path(tmp) / "registry")]
         if workers is not None:
@@ -39,29 +44,54 @@ def timed_study(cells: int, steps: int, workers: int | None) -> float:
         return time.perf_counter() - start
 
 
+def table(rows: list[dict], base: float, cells: int, efficiency: bool = True) -> None:
+    """Print the rows, adding cells per hour, the speed-up over `base` seconds and (over serial) the
+    efficiency, speed-up / workers."""
+    print("| backend | workers | wall time (s) | cells per hour | speed-up |" + (" efficiency |" if efficiency else ""))
+    print("|---|---|---|---|---|" + ("---|" if efficiency else ""))
+    for r in rows:
+        r["cells_per_hour"] = cells * 3600 / r["seconds"]
+        r["speedup"] = base / r["seconds"]
+        line = (f"| {r['backend']} | {r['workers']} | {r['seconds']:.0f} | {r['cells_per_hour']:.0f} | "
+                f"{r['speedup']:.2f}× |")
+        if efficiency:
+            r["efficiency"] = r["speedup"] / r["workers"]
+            line += f" {r['efficiency']:.0%} |"
+        print(line)
+
+
 def main(argv: list[str]) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--cells", type=int, default=8)
     parser.add_argument("--steps", type=int, default=20_480)
+    parser.add_argument("--seeds-together", type=int, default=None, metavar="S",
+                        help="two targets x S seeds, one seed a task against a cell's seeds a task")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
-    rows = [{"backend": "serial", "workers": 1, "seconds": timed_study(args.cells, args.steps, None)}]
-    for n in args.workers:
-        rows.append({"backend": "ray", "workers": n, "seconds": timed_study(args.cells, args.steps, n)})
-    serial = rows[0]["seconds"]
-    print(f"{args.cells} cells x {args.steps:,} steps (centipede-four, vpg), {platform.node()}, "
-          f"{os.cpu_count()} CPUs\n")
-    print("| backend | workers | wall time (s) | cells per hour | speed-up | efficiency |")
-    print("|---|---|---|---|---|---|")
-    for r in rows:
-        r["cells_per_hour"] = args.cells * 3600 / r["seconds"]
-        r["speedup"] = serial / r["seconds"]
-        r["efficiency"] = r["speedup"] / r["workers"]
-        print(f"| {r['backend']} | {r['workers']} | {r['seconds']:.0f} | {r['cells_per_hour']:.0f} | "
-              f"{r['speedup']:.2f}× | {r['efficiency']:.0%} |")
+    when = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    if args.seeds_together is not None:
+        seeds, targets = args.seeds_together, ("centipede-four", "centipede-six")
+        rows = []
+        for n in args.workers:
+            for together in (False, True):
+                rows.append({"backend": "ray, a cell's seeds a task" if together else "ray, one seed a task",
+                             "workers": n, "seeds_together": together,
+                             "seconds": timed_study(grid_text(seeds, args.steps, targets, together), n)})
+        print(f"{len(targets)} targets x {seeds} seeds x {args.steps:,} steps (vpg on {' and '.join(targets)}), "
+              f"{platform.node()}, {os.cpu_count()} CPUs, {when}\n")
+        table(rows, rows[0]["seconds"], len(targets) * seeds, efficiency=False)
+        record = {"measured": when, "targets": list(targets), "seeds": seeds, "steps": args.steps, "rows": rows}
+    else:
+        rows = [{"backend": "serial", "workers": 1, "seconds": timed_study(grid_text(args.cells, args.steps), None)}]
+        for n in args.workers:
+            rows.append({"backend": "ray", "workers": n, "seconds": timed_study(grid_text(args.cells, args.steps), n)})
+        print(f"{args.cells} cells x {args.steps:,} steps (centipede-four, vpg), {platform.node()}, "
+              f"{os.cpu_count()} CPUs, {when}\n")
+        table(rows, rows[0]["seconds"], args.cells)
+        record = {"cells": args.cells, "steps": args.steps, "rows": rows}
     if args.json:
-        args.json.write_text(json.dumps({"cells": args.cells, "steps": args.steps, "rows": rows}, indent=2))
+        args.json.write_text(json.dumps(record, indent=2))
 
 
 if __name__ == "__main__":

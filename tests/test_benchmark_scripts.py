@@ -243,6 +243,18 @@ def test_every_committed_grid_loads():
         load_grid(path)
 
 
+def test_study_scaling_grids_are_valid_grids_with_and_without_seeds_together(tmp_path):
+    from miktcli.studies.grid import load_grid
+
+    scaling = load_script("study_scaling")
+    for together in (False, True):
+        path = tmp_path / f"{together}.toml"
+        path.write_text(scaling.grid_text(5, 2048, ("centipede-four", "centipede-six"), together))
+        grid = load_grid(path)
+        assert grid.seeds_together is together and grid.seeds == [0, 1, 2, 3, 4]
+        assert [pair.to for pair in grid.pairs] == ["centipede-four", "centipede-six"]
+
+
 @pytest.mark.slow
 def test_throughput_quick_run_writes_its_tables_and_figures(tmp_path):
     pytest.importorskip("stable_baselines3", reason="the SB3 side needs pip install -e '.[bench]'")
