@@ -17,23 +17,31 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+ROOT = Path(__file__).resolve().parents[1]
 
-def grid_text(cells: int, steps: int, targets: tuple[str, ...] = ("centipede-four",), together: bool = False) -> str:
-    pairs = "".join(f'[[pairs]]\nfrom = ["none"]\nto = "{target}"\n' for target in targets)
+def grid_text(cells: int, steps: int, targets: tuple[str, ...] = ("centipede-four",), together: bool = False,
+              teachers: tuple[str, ...] = ()) -> str:
+    """The grid: PPO from scratch on each target, or with `teachers` MIKT from them to each target."""
+    sources = ", ".join(f'"{t}"' for t in teachers or ("none",))
+    pairs = "".join(f'[[pairs]]\nfrom = [{sources}]\nto = "{target}"\n' for target in targets)
+    method = "mikt" if teachers else "vpg"
     return (f'name = "scaling"\nsteps = {steps}\nseeds = {list(range(cells))}\neval_episodes = 1\n'
-            f'seeds_together = {str(together).lower()}\n{pairs}[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+            f'baseline = "{method}"\nseeds_together = {str(together).lower()}\n{pairs}'
+            f'[[methods]]\nname = "{method}"\nmethod = "{method}"\n')
 
 
 def timed_study(text: str, workers: int | None) -> float:
     with tempfile.TemporaryDirectory() as tmp:
         grid = Path(tmp) / "grid.toml"
         grid.write_text(text)
+        shutil.copytree(ROOT / "registry" / "teachers", Path(tmp) / "registry" / "teachers")  # the packaged ones
         command = [sys.executable, "-m", "miktcli", "study", str(grid), "--out", str(Path(tmp) / "out"),
                    "--registry", str(Path(tmp) / "registry")]
         if workers is not None:
@@ -67,21 +75,27 @@ def main(argv: list[str]) -> None:
     parser.add_argument("--steps", type=int, default=20_480)
     parser.add_argument("--seeds-together", type=int, default=None, metavar="S",
                         help="two targets x S seeds, one seed a task against a cell's seeds a task")
+    parser.add_argument("--from", dest="teachers", action="append", default=[],
+                        help="with --seeds-together: MIKT from these teachers (give it twice for two) to "
+                        "centipede-eight and cp-centipede-eight, instead of PPO on centipede-four and -six")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
     when = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     if args.seeds_together is not None:
-        seeds, targets = args.seeds_together, ("centipede-four", "centipede-six")
+        seeds, teachers = args.seeds_together, tuple(args.teachers)
+        targets = ("centipede-eight", "cp-centipede-eight") if teachers else ("centipede-four", "centipede-six")
         rows = []
         for n in args.workers:
             for together in (False, True):
                 rows.append({"backend": "ray, a cell's seeds a task" if together else "ray, one seed a task",
                              "workers": n, "seeds_together": together,
-                             "seconds": timed_study(grid_text(seeds, args.steps, targets, together), n)})
-        print(f"{len(targets)} targets x {seeds} seeds x {args.steps:,} steps (vpg on {' and '.join(targets)}), "
+                             "seconds": timed_study(grid_text(seeds, args.steps, targets, together, teachers), n)})
+        what = f"mikt from {' + '.join(teachers)}" if teachers else "vpg"
+        print(f"{len(targets)} targets x {seeds} seeds x {args.steps:,} steps ({what} on {' and '.join(targets)}), "
               f"{platform.node()}, {os.cpu_count()} CPUs, {when}\n")
         table(rows, rows[0]["seconds"], len(targets) * seeds, efficiency=False)
-        record = {"measured": when, "targets": list(targets), "seeds": seeds, "steps": args.steps, "rows": rows}
+        record = {"measured": when, "method": "mikt" if teachers else "vpg", "teachers": list(teachers),
+                  "targets": list(targets), "seeds": seeds, "steps": args.steps, "rows": rows}
     else:
         rows = [{"backend": "serial", "workers": 1, "seconds": timed_study(grid_text(args.cells, args.steps), None)}]
         for n in args.workers:
