@@ -243,6 +243,35 @@ def test_every_committed_grid_loads():
         load_grid(path)
 
 
+@pytest.mark.slow
+def test_handover_remeasure_measures_each_run_once_per_episode_count_and_keeps_earlier_ones(registry, teacher,
+                                                                                         tmp_path, monkeypatch):
+    from helpers import mikt
+
+    remeasure = load_script("handover_remeasure")
+    run = json.loads(mikt("transfer", "--from", "tiny", "--to", "hopper", "--steps", 10240, "--ramp-start", 0.2,
+                          "--drop-teacher-at", 0.5, "--eval-episodes", 2, "--json").stdout)
+    vpg = json.loads(mikt("transfer", "--to", "hopper", "--method", "vpg", "--steps", 2048, "--eval-episodes", 1,
+                          "--json").stdout)["run"]
+    results = tmp_path / "study"
+    results.mkdir()
+    (results / "state.json").write_text(json.dumps({"tiny@v1>hopper|mikt|0": run["run"], "->hopper|vpg|0": vpg}))
+    remeasure.main([str(results), "--registry", str(registry), "--episodes", "2"])
+    record = json.loads((results / "handover-remeasured.json").read_text())
+    assert list(record["runs"]) == [run["run"]]  # the PPO run has no drop
+    two = record["runs"][run["run"]]["measured"]["2"]
+    assert two["kept_fraction"] == run["handover"]["kept_fraction"]  # the card's episodes: the card's numbers
+    assert record["runs"][run["run"]]["card"]["episodes"] == 2
+    monkeypatch.setattr(remeasure, "measure_handover", lambda *a: pytest.fail("measured twice"))
+    remeasure.main([str(results), "--registry", str(registry), "--episodes", "2"])  # nothing new to measure
+    monkeypatch.undo()
+    remeasure.main([str(results), "--registry", str(registry), "--episodes", "3"])
+    record = json.loads((results / "handover-remeasured.json").read_text())
+    assert sorted(record["runs"][run["run"]]["measured"]) == ["2", "3"]
+    table = (results / "handover-remeasured.md").read_text()
+    assert "tiny@v1>hopper|mikt" in table and "3 episodes" in table
+
+
 def test_study_scaling_grids_are_valid_grids_with_and_without_seeds_together(tmp_path):
     from miktcli.studies.grid import load_grid
 
