@@ -272,6 +272,22 @@ def test_handover_remeasure_measures_each_run_once_per_episode_count_and_keeps_e
     assert "tiny@v1>hopper|mikt" in table and "3 episodes" in table
 
 
+def test_teachers_vs_cat_reads_both_sides_over_the_window_before_cat_s_checkpoint(tmp_path, capsys):
+    script = load_script("teachers_vs_cat")
+    for cat_name in script.NAMES.values():
+        for seed in range(5):
+            folder = tmp_path / cat_name / str(seed)
+            folder.mkdir(parents=True)
+            # 976 updates: 100 outside the window, 10 + seed inside it (updates 961-970)
+            rows = ["eprewmean,nupdates", *(f"{10 + seed if 961 <= u <= 970 else 100},{u}" for u in range(1, 977))]
+            (folder / "progress.csv").write_text("\n".join(rows) + "\n")
+    script.main(["--cat", str(tmp_path), "--out", str(tmp_path / "table.md")])
+    table = (tmp_path / "table.md").read_text()
+    assert "| centipede-six |" in table and "| 10 | " in table  # CAT's seed 0 is its window's 10
+    assert "10 / 11 / 12 / 13 / 14 | 12 |" in table  # the five seeds and their mean
+    assert table == capsys.readouterr().out
+
+
 def test_study_scaling_grids_are_valid_grids_with_and_without_seeds_together(tmp_path):
     from miktcli.studies.grid import load_grid
 
