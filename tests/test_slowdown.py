@@ -46,9 +46,13 @@ def test_a_run_that_slows_says_so_in_its_card(registry, monkeypatch):
     original = PPOTrainer.update
 
     def slower_from_the_third(self, batch):
+        # six times its own update time from the third iteration: a jump that a busy machine scales with the
+        # rest (a fixed 1.5 s sleep was flagged an iteration late on a machine running two trainings beside)
+        start = time.perf_counter()
+        out = original(self, batch)
         if self.iteration >= 2:
-            time.sleep(1.5)
-        return original(self, batch)
+            time.sleep(5 * (time.perf_counter() - start))
+        return out
 
     monkeypatch.setattr(PPOTrainer, "update", slower_from_the_third)
     result = CliRunner().invoke(app, ["teacher", "train", "hopper", "--steps", "8192", "--name", "t"])
