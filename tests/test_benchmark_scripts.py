@@ -288,6 +288,31 @@ def test_teachers_vs_cat_reads_both_sides_over_the_window_before_cat_s_checkpoin
     assert table == capsys.readouterr().out
 
 
+def test_teacher_screen_report_sets_both_teachers_and_cat_side_by_side_with_cat_s_estimator(registry, tmp_path):
+    from miktcli.registry.runs import open_run
+
+    script = load_script("teacher_screen_report")
+    steps = 1_000_000 // 2048 + 500  # past CAT's last window
+    folders = {}
+    for name, level in (("new", 4000.0), ("old", 3000.0)):
+        folders[name] = []
+        for seed in (0, 1):
+            rows = [{"episode_return_iter": level + seed} for _ in range(steps)]
+            run_id = fake_run(registry, "centipede-eight", "mikt", seed, [level] * steps, level, per_row=rows,
+                              teachers=("centipede-four", f"six-{name}"))
+            run = open_run(registry, run_id)
+            run.save_card(result={**run.card.result, "handover": {"with_teachers": {"return_mean": level},
+                                                                  "without_teachers": {"return_mean": level / 2}}})
+            folders[name].append(run.path)
+    out = tmp_path / "pair.md"
+    script.main(["--new", *map(str, folders["new"]), "--old", *map(str, folders["old"]), "--out", str(out)])
+    table = out.read_text()
+    assert "| **new six teacher: seed mean** | **4,000** | **4,000** | **4,000** | 4,000 → 2,000 (50 %) |" in table
+    assert "| **six@v2: seed mean** | **3,000** | **3,000** | **3,000** |" in table
+    assert "| CAT (1 seed) | 3,084 | 4,219 | 4,909 | |" in table
+    assert "New minus six@v2 (seed means): +1,000, +1,000, +1,000; new minus CAT: +916, -218, -908." in table
+
+
 def test_study_scaling_grids_are_valid_grids_with_and_without_seeds_together(tmp_path):
     from miktcli.studies.grid import load_grid
 
