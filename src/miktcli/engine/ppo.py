@@ -298,8 +298,22 @@ class PPOTrainer:
         self.episodes = 0
 
     # --- rollout ------------------------------------------------------------------------------------
+    def rollout_collector(self, obs_in: np.ndarray | None = None) -> RolloutCollector:
+        """This trainer's next rollout, a step at a time (the seeds-together rollout steps several at once)."""
+        cfg = self.config
+        return RolloutCollector(self.agent, self.envs, cfg.n_steps, self.rng,
+                                self.reward_scaler if cfg.reward_scaling else None, obs_in)
+
+    def finish_rollout(self, collector: RolloutCollector) -> tuple[Rollout, dict[str, float]]:
+        """The collected rollout and its stats; its finished episodes join the recent returns."""
+        for ret, length in collector.finished:
+            self.recent_returns.append(ret)
+            self.recent_lengths.append(length)
+        self.episodes += len(collector.finished)
+        return collector.finish()
+
     def collect(self) -> tuple[Rollout, dict[str, float]]:
-        collector = RolloutCollector(self)
+        collector = self.rollout_collector()
         actor = self.agent.rollout_actor(torch.from_numpy(collector.obs_in))
         clock = time.perf_counter
         # inference_mode, not no_grad: nothing made here reaches autograd (it all goes to numpy buffers), and
@@ -310,7 +324,7 @@ class PPOTrainer:
                 collector.observe()
                 mean = actor().numpy()
                 collector.act(mean, clock() - t0)
-        return collector.finish()
+        return self.finish_rollout(collector)
 
     # --- advantages ---------------------------------------------------------------------------------
     def _values_and_targets(self, ro: Rollout) -> Minibatch:

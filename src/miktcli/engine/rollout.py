@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from miktcli.engine.policies import ActorCritic
 from miktcli.envs.mujoco_warnings import mujoco_warning_count
-
-if TYPE_CHECKING:
-    from miktcli.engine.ppo import PPOTrainer
+from miktcli.envs.vector import SyncEnvs
 
 
 @dataclass
@@ -34,26 +33,28 @@ class Rollout:
 
 
 class RolloutCollector:
-    """One rollout of `trainer`'s envs. `obs_in` is the (num_envs, obs_dim) float32 buffer the actor reads
-    (a seed's row of a stacked buffer when seeds train together); one is made when none is given."""
+    """One rollout of `n_steps` on `envs` with `agent`'s noise scale, its samples drawn from `rng`, its rewards
+    scaled by `reward_scaler` (None: raw). `obs_in` is the (num_envs, obs_dim) float32 buffer the actor reads
+    (a seed's row of a stacked buffer when seeds train together); one is made when none is given. The
+    episodes that ended are in `finished` (return, length) for the trainer to keep."""
 
-    def __init__(self, trainer: PPOTrainer, obs_in: np.ndarray | None = None):
-        cfg, envs, agent = trainer.config, trainer.envs, trainer.agent
-        T, N = cfg.n_steps, cfg.num_envs
+    def __init__(self, agent: ActorCritic, envs: SyncEnvs, n_steps: int, rng: np.random.Generator,
+                 reward_scaler: Any | None, obs_in: np.ndarray | None = None):
+        T, N = n_steps, envs.num
         obs_dim = envs.obs.shape[1]
         act_dim = agent.log_std.shape[0]
-        self.trainer, self.envs, self.steps = trainer, envs, T
+        self.envs, self.steps = envs, T
         self.ro = Rollout(
             obs=np.empty((T, N, obs_dim), np.float32), actions=np.empty((T, N, act_dim), np.float32),
             rewards=np.empty((T, N)), terminated=np.zeros((T, N)), dones=np.zeros((T, N)),
         )
         std = np.exp(agent.log_std.detach().numpy())
-        self.noise = trainer.rng.standard_normal((T, N, act_dim)).astype(np.float32) * std
+        self.noise = rng.standard_normal((T, N, act_dim)).astype(np.float32) * std
         self.normalizer = agent.obs_normalizer
         # The per-step pieces over buffers made once per rollout (the same bits as the module's own paths).
         self.fast_norm = self.normalizer.rollout(N)
         self.obs_in = np.empty((N, obs_dim), np.float32) if obs_in is None else obs_in
-        self.reward_scaler = trainer.reward_scaler if cfg.reward_scaling else None
+        self.reward_scaler = reward_scaler
         self.scale_one = self.reward_scaler.scale_one if self.reward_scaler is not None and N == 1 else None
         self.t = 0
         self.t_env = self.t_inf = 0.0
@@ -94,14 +95,9 @@ class RolloutCollector:
         self.t = t + 1
 
     def finish(self) -> tuple[Rollout, dict[str, Any]]:
-        """The rollout, with the last observation for bootstrapping; the finished episodes go to the
-        trainer's recent returns."""
-        ro, trainer = self.ro, self.trainer
+        """The rollout, with the last observation for bootstrapping, and its stats."""
+        ro = self.ro
         ro.last_obs = self.normalizer.normalize_np(self.obs_raw)
-        for ret, length in self.finished:
-            trainer.recent_returns.append(ret)
-            trainer.recent_lengths.append(length)
-        trainer.episodes += len(self.finished)
         stats = {
             "time_env": self.t_env, "time_inference": self.t_inf,
             "episodes_finished": len(self.finished),

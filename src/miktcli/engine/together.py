@@ -38,7 +38,7 @@ from torch import nn
 from torch.func import functional_call
 
 from miktcli.engine.ppo import Minibatch, PPOTrainer, compiled, flushing_denormals, update_metrics
-from miktcli.engine.rollout import Rollout, RolloutCollector
+from miktcli.engine.rollout import Rollout
 
 
 class _RolloutActor(nn.Module):
@@ -139,7 +139,7 @@ class SeedsTogether:
         start = clock()
         envs = trainers[0].envs
         stacked = np.empty((len(trainers), *envs.obs.shape), np.float32)
-        collectors = [RolloutCollector(t, stacked[s]) for s, t in enumerate(trainers)]
+        collectors = [t.rollout_collector(stacked[s]) for s, t in enumerate(trainers)]
         actor = functional_call(self._actor, self.param_views, (torch.from_numpy(stacked),))
         share = 1.0 / len(trainers)
         with torch.inference_mode():
@@ -151,7 +151,7 @@ class SeedsTogether:
                 inference = (clock() - t0) * share
                 for c, mean in zip(collectors, means, strict=True):
                     c.act(mean, inference)
-        results = [c.finish() for c in collectors]
+        results = [t.finish_rollout(c) for t, c in zip(trainers, collectors, strict=True)]
         wall = (clock() - start) * share
         return [(rollout, stats, wall) for rollout, stats in results]
 
