@@ -23,6 +23,7 @@ from pathlib import Path
 
 from miktcli.errors import MiktError
 from miktcli.registry.files import write_text_atomic
+from miktcli.registry.runs import open_run
 from miktcli.studies.state import read_state
 from miktcli.workflows.evaluate import DROP_CHECKPOINT, measure_handover
 
@@ -39,8 +40,9 @@ def remeasure(results: Path, registry: Path, episodes: int) -> dict:
     path = results / RECORD
     record = json.loads(path.read_text()) if path.exists() else {"runs": {}}
     for cell, run_id in sorted(read_state(results / "state.json").items()):
-        run_dir = registry / "runs" / run_id
-        if not (run_dir / f"checkpoint-{DROP_CHECKPOINT}.safetensors").exists():
+        if not (registry / "runs" / run_id).is_dir():  # a cell whose run this registry lacks
+            continue
+        if DROP_CHECKPOINT not in open_run(registry, run_id).kept_checkpoints():
             continue
         entry = record["runs"].setdefault(run_id, {"cell": cell, "measured": {}})
         if str(episodes) in entry["measured"]:

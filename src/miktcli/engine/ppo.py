@@ -265,6 +265,11 @@ def update_metrics(means: dict[str, float], first_ratio_dev: float, batch: Minib
             "explained_variance": float("nan") if var_y == 0 else 1 - float((returns - values).var()) / var_y}
 
 
+def iterations_for(total_steps: int, config: PPOConfig) -> int:
+    """How many iterations (rollout + update) a budget of `total_steps` trains: at least one."""
+    return max(1, total_steps // config.batch_size)
+
+
 class PPOTrainer:
     """Trains an ActorCritic on a vector of envs. Iterate `run()` to get one metrics dict per update."""
 
@@ -279,7 +284,7 @@ class PPOTrainer:
         self.agent, self.config, self.seed = agent, config, seed
         torch.set_num_threads(config.torch_threads)  # the same numbers from the CLI, a script or a notebook
         self.total_steps = total_steps
-        self.num_iterations = max(1, total_steps // config.batch_size)
+        self.num_iterations = iterations_for(total_steps, config)
         self.iteration = 0
         self.global_step = 0
         self.envs = SyncEnvs([make_env() for _ in range(config.num_envs)], seed,

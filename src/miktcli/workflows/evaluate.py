@@ -8,6 +8,7 @@ from typing import NamedTuple
 
 from miktcli.engine.episodes import evaluate_policy, evaluation_summary  # noqa: F401 - the workflows' names
 from miktcli.engine.policies import TEACHER_FREE, ActorCritic
+from miktcli.engine.ppo import iterations_for
 from miktcli.errors import MiktError
 from miktcli.methods import get_method
 from miktcli.registry.carried import ResolvedEnv, resolve_teacher_env
@@ -89,7 +90,7 @@ def measure_handover(registry: Path, run_id: str, episodes: int) -> dict:
                         hint="a run keeps it when it passes the drop; a study's snapshots carry no checkpoints")
     env = run_env(run, "cannot evaluate")
     agent, ckpt = agent_at_checkpoint(run, registry, env.spec, run.kept_checkpoint_path(DROP_CHECKPOINT))
-    iterations = max(1, run.card.total_steps // run.card.config.ppo.batch_size)  # as PPOTrainer counts them
+    iterations = iterations_for(run.card.total_steps, run.card.config.ppo)
     agent.restore_progress((ckpt.iteration - 1) / iterations)  # where training had the schedule
     record = evaluate_handover(agent, method, env.name, episodes, EVAL_SEED_OFFSET + run.card.seed,
                                run.card.config.ppo.clip_actions_for_env, ckpt.iteration / iterations)
