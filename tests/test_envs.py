@@ -9,6 +9,7 @@ from miktcli.errors import MiktError
 SHIPPED = {
     "centipede-four": (97, 10), "centipede-six": (139, 16), "centipede-eight": (181, 22),
     "cp-centipede-six": (139, 12), "cp-centipede-eight": (181, 18), "ant": (111, 8), "hopper": (11, 3),
+    "centipede-eight-zero-contacts": (181, 22),
 }
 
 
@@ -174,3 +175,34 @@ def test_dims_that_disagree_with_the_model(tmp_path):
 def test_unknown_env_lists_the_known_ones():
     with pytest.raises(MiktError, match="unknown environment 'centipede-five'.*centipede-four"):
         load_spec("centipede-five")
+
+
+def test_zero_contact_readings_change_the_observation_and_the_reward_only():
+    """contact_readings = "zero" (CAT's mujoco-py 2.x runs): the same physics step for step, the contact entries
+    and the contact cost at 0; and a live spec's fingerprint is the one it had before the field existed."""
+    from miktcli.envs.fingerprint import spec_fingerprint, spec_record
+
+    live_spec = load_spec("centipede-eight")
+    zero_spec = live_spec.model_copy(update={"contact_readings": "zero"})
+    assert "contact_readings" not in spec_record(live_spec)
+    assert spec_fingerprint(zero_spec) != spec_fingerprint(live_spec)
+    live, zero = make_env(live_spec), make_env(zero_spec)
+    contact_from = live.unwrapped.model.nq - 2 + live.unwrapped.model.nv
+    obs_l, _ = live.reset(seed=3)
+    obs_z, _ = zero.reset(seed=3)
+    assert np.array_equal(obs_l[:contact_from], obs_z[:contact_from]) and not obs_z[contact_from:].any()
+    rng, live_contacts = np.random.default_rng(0), 0
+    for _ in range(40):
+        action = rng.uniform(-1, 1, live.action_space.shape)
+        obs_l, r_l, term_l, trunc_l, info_l = live.step(action)
+        obs_z, r_z, term_z, trunc_z, info_z = zero.step(action)
+        assert np.array_equal(obs_l[:contact_from], obs_z[:contact_from]) and not obs_z[contact_from:].any()
+        assert info_z["reward_contact"] == 0.0 and info_z["reward_forward"] == info_l["reward_forward"]
+        assert r_z == pytest.approx(r_l - info_l["reward_contact"], abs=1e-12)
+        assert (term_l, trunc_l) == (term_z, trunc_z)
+        live_contacts += int(obs_l[contact_from:].any())
+        if term_l:
+            break
+    assert live_contacts  # the live env did read contacts, on the steps the zero one read none
+    live.close()
+    zero.close()

@@ -53,6 +53,7 @@ CASES = {
     "centipede-four": (spec_env("centipede-four", 30), 150),
     "cp-centipede-six": (spec_env("cp-centipede-six", 25), 120),
     "centipede-eight": (spec_env("centipede-eight", 20), 60),
+    "centipede-eight-zero-contacts": (spec_env("centipede-eight-zero-contacts", 20), 60),
     "ant": (spec_env("ant", 25), 120),
     # a narrow healthy range so that Ant episodes also end by termination
     "ant-terminating": (spec_env("ant", 40, healthy_z_range=(0.45, 1.0)), 120),

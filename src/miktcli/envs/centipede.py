@@ -31,8 +31,14 @@ class CentipedeEnv(gym.Env):
         render_mode: str | None = None,
         width: int = 480,
         height: int = 480,
+        contact_readings: str = "live",
     ):
+        if contact_readings not in ("live", "zero"):
+            raise ValueError(f"contact_readings must be 'live' or 'zero', got {contact_readings!r}")
         self.legs = legs
+        # "zero" reproduces mujoco-py 2.x, where mj_step leaves cfrc_ext at 0 unless mj_rnePostConstraint runs
+        # (CAT's published two-teacher runs never called it): the contact entries and the contact cost read 0.
+        self.live_contacts = contact_readings == "live"
         self.torsos = legs // 2
         self.model = mujoco.MjModel.from_xml_string(centipede_xml(legs, crippled_legs))
         self.data = mujoco.MjData(self.model)
@@ -71,6 +77,8 @@ class CentipedeEnv(gym.Env):
         return bool((np.abs(np.diff(xpos[:, 1])) < MAX_LATERAL_GAP).all())
 
     def contact_forces(self) -> np.ndarray:
+        if not self.live_contacts:
+            return np.zeros_like(self.data.cfrc_ext)
         return np.clip(self.data.cfrc_ext, -1.0, 1.0)
 
     def _obs(self) -> np.ndarray:
@@ -101,7 +109,8 @@ class CentipedeEnv(gym.Env):
                 break
         else:  # pragma: no cover - the sampler accepts within a few tries for every shipped morphology
             raise RuntimeError("centipede reset found no healthy state")
-        mujoco.mj_rnePostConstraint(m, d)
+        if self.live_contacts:
+            mujoco.mj_rnePostConstraint(m, d)
         self._elapsed = 0
         return self._obs(), {}
 
@@ -112,7 +121,8 @@ class CentipedeEnv(gym.Env):
         diverged_before = self._divergence_count()
         d.ctrl[:] = action  # ctrllimited: MuJoCo clamps to [-1, 1]
         mujoco.mj_step(m, d, nstep=FRAME_SKIP)
-        mujoco.mj_rnePostConstraint(m, d)  # cfrc_ext is only filled by this call
+        if self.live_contacts:
+            mujoco.mj_rnePostConstraint(m, d)  # cfrc_ext is only filled by this call
         forward = (self.front_x() - x_before) / self.dt
         ctrl_cost = self._ctrl_cost_weight * float(np.square(action).sum())
         contact = self.contact_forces()
@@ -158,7 +168,8 @@ class CentipedeStepper:
         self.front_x = d.xpos[env._front_body, 0:1]
         self.warnings = d.warning.number  # a live view
         self.divergence = np.array([int(w) for w in _DIVERGENCE_WARNINGS])
-        self.cfrc_ext, self.contact = d.cfrc_ext, np.empty_like(d.cfrc_ext)
+        self.live_contacts = env.live_contacts
+        self.cfrc_ext, self.contact = d.cfrc_ext, np.zeros_like(d.cfrc_ext)  # stays 0 without live contacts
         self.qpos_tail, self.qvel = d.qpos[2:], d.qvel
         self.ctrl_w, self.contact_w = env._ctrl_cost_weight, env._contact_cost_weight
         self.nq, self.nv = self.qpos_tail.shape[0], self.qvel.shape[0]
@@ -170,10 +181,12 @@ class CentipedeStepper:
         diverged_before = int(self.warnings[self.divergence].sum())
         d.ctrl[:] = action
         mujoco.mj_step(m, d, nstep=FRAME_SKIP)
-        mujoco.mj_rnePostConstraint(m, d)
+        if self.live_contacts:
+            mujoco.mj_rnePostConstraint(m, d)
+            np.clip(self.cfrc_ext, -1.0, 1.0, out=self.contact)
         forward = (float(self.front_x[0]) - x_before) / self.env.dt
         ctrl_cost = self.ctrl_w * float(np.square(action).sum())
-        contact = np.clip(self.cfrc_ext, -1.0, 1.0, out=self.contact)
+        contact = self.contact
         contact_cost = self.contact_w * float(np.square(contact).sum())
         reward = forward - ctrl_cost - contact_cost + 1.0
         terminated = int(self.warnings[self.divergence].sum()) > diverged_before or not self.env.is_healthy()

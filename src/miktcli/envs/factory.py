@@ -45,7 +45,7 @@ def _build(spec: Spec, render_mode: str | None) -> gym.Env:
     environment modules can read their spec types without the specs importing them."""
     if isinstance(spec, CentipedeSpec):
         return CentipedeEnv(spec.legs, spec.crippled_legs, max_episode_steps=spec.max_episode_steps,
-                            render_mode=render_mode)
+                            render_mode=render_mode, contact_readings=spec.contact_readings)
     if isinstance(spec, MjcfSpec):
         return MjcfEnv(spec, render_mode=render_mode)
     if isinstance(spec, GymnasiumSpec):

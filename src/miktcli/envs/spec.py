@@ -48,6 +48,11 @@ class CentipedeSpec(_SpecBase):
     family: Literal["centipede"]
     legs: int = Field(ge=4, le=MAX_LEGS, description="number of legs, even; legs/2 torsos")
     crippled_legs: list[int] = Field(default_factory=list, description="legs whose motors are removed")
+    contact_readings: Literal["live", "zero"] = Field(
+        "live", description="live: the clipped external contact forces (cfrc_ext after mj_rnePostConstraint), in "
+        "the observation and the contact cost, as NerveNet defines them. zero: those entries read 0 and the "
+        "contact cost is 0, which is what mujoco-py 2.x gave without mj_rnePostConstraint (CAT's published "
+        "two-teacher runs); the observation keeps its size")
 
     @model_validator(mode="after")
     def _check_legs(self) -> CentipedeSpec:
@@ -150,6 +155,7 @@ class MjcfSpec(_SpecBase):
 # Fields added to MjcfSpec after runs had recorded specs (and their fingerprints) without them: at their default
 # they are left out of a spec's record, so that an older run's spec still reads as the same task.
 MJCF_LATER_DEFAULTS: dict[str, Any] = {"keyframe": None, "action_map": "raw", "floor": False, "remove": []}
+CENTIPEDE_LATER_DEFAULTS: dict[str, Any] = {"contact_readings": "live"}
 
 AnySpec = CentipedeSpec | GymnasiumSpec | MjcfSpec
 EnvSpec = Annotated[AnySpec, Field(discriminator="family")]
