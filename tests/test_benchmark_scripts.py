@@ -310,7 +310,15 @@ def test_teacher_screen_report_sets_both_teachers_and_cat_side_by_side_with_cat_
     assert "| **new six teacher: seed mean** | **4,000** | **4,000** | **4,000** | 4,000 → 2,000 (50 %) |" in table
     assert "| **six@v2: seed mean** | **3,000** | **3,000** | **3,000** |" in table
     assert "| CAT (1 seed) | 3,084 | 4,219 | 4,909 | |" in table
-    assert "New minus six@v2 (seed means): +1,000, +1,000, +1,000; new minus CAT: +916, -218, -908." in table
+    assert "New six teacher minus six@v2 (seed means): +1,000, +1,000, +1,000; new six teacher minus CAT: +916, " \
+        "-218, -908." in table
+    # another screen names what it changed; PPO from scratch has no CAT row and no hand-over
+    script.main(["--new", *map(str, folders["new"]), "--old", *map(str, folders["old"]), "--out", str(out),
+                 "--new-label", "zero contacts", "--old-label", "live contacts", "--intro", "PPO.", "--no-cat"])
+    table = out.read_text()
+    assert table.splitlines()[1].startswith("PPO. Mean per-update return")
+    assert "| **zero contacts: seed mean** | **4,000** |" in table and "CAT" not in table.split("\n", 2)[2]
+    assert "Zero contacts minus live contacts (seed means): +1,000, +1,000, +1,000." in table
 
 
 def test_study_scaling_grids_are_valid_grids_with_and_without_seeds_together(tmp_path):
