@@ -51,6 +51,8 @@ def test_only_curves_of_fewer_seeds_than_the_grid_are_labelled_with_their_count(
 
     assert partial_seed_labels({"mikt": 5, "vpg": 5, "mlpp": 1}, 5) == {"mlpp": "mlpp (1 of 5 seeds)"}
     assert partial_seed_labels({"mikt": 1}, 1) == {}
+    # seeds planned curve by curve (a pair's own seeds): three of three is whole, three of five is not
+    assert partial_seed_labels({"mikt": 3, "vpg": 3}, {"mikt": 3, "vpg": 5}) == {"vpg": "vpg (3 of 5 seeds)"}
 
 
 def test_more_curves_than_colours_change_line_style_so_no_two_curves_look_alike():

@@ -167,3 +167,27 @@ def test_every_committed_grid_loads_and_its_options_validate():
             get_method(method.method).parse_options(method.options)
         if grid.name == "multi-screen":
             assert len(Study(grid, Path("/nonexistent"), Path("/nonexistent")).distinct_cells()) <= 16
+
+
+def test_a_pair_may_train_its_own_seeds_and_runs_from_scratch_keep_the_grid_s(registry, tmp_path):
+    """`seeds` on a pair (a one-teacher comparison needs fewer seeds than the pairs it is set beside): the
+    methods with teachers train those, a run from scratch is the target's and keeps the grid's seeds."""
+    from miktcli.errors import MiktError
+    from miktcli.studies.grid import Grid, cell_key, load_grid
+    from miktcli.studies.study import Study
+
+    grid = Grid.model_validate({"name": "g", "steps": 2048, "seeds": [0, 1, 2],
+                                "methods": [{"name": "vpg", "method": "vpg"}, {"name": "m", "method": "mlpp"}],
+                                "pairs": [{"from": ["a", "b"], "to": "hopper"},
+                                          {"from": ["a"], "to": "hopper", "seeds": [0]}]})
+    assert [cell_key(*cell) for cell in Study(grid, tmp_path / "out", registry).distinct_cells()] == [
+        "->hopper|vpg|0", "->hopper|vpg|1", "->hopper|vpg|2", "a+b>hopper|m|0", "a+b>hopper|m|1",
+        "a+b>hopper|m|2", "a>hopper|m|0"]
+    one = grid.pairs[1]
+    assert grid.seeds_of(one, grid.methods[1]) == [0] and grid.seeds_of(one, grid.methods[0]) == [0, 1, 2]
+    path = tmp_path / "g.toml"
+    for seeds, message in (("[1, 1]", "duplicate seed of pair a → hopper: 1"), ("[]", "seeds")):
+        path.write_text(f'name = "g"\nsteps = 2048\nseeds = [0]\n[[pairs]]\nfrom = ["a"]\nto = "hopper"\n'
+                        f'seeds = {seeds}\n[[methods]]\nname = "vpg"\nmethod = "vpg"\n')
+        with pytest.raises(MiktError, match=message):
+            load_grid(path)

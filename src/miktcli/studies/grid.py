@@ -27,6 +27,9 @@ class PairSpec(BaseModel):
     teachers: list[str] = Field(alias="from", min_length=1)
     to: str
     label: str | None = None
+    seeds: list[Annotated[int, Field(ge=0, le=2**32 - 1)]] | None = Field(
+        None, min_length=1, description="this pair's seeds for the methods with teachers, in place of the grid's; "
+        "runs from scratch are the target's, shared by its pairs, and keep the grid's seeds")
 
     @property
     def teacher_names(self) -> str:
@@ -116,6 +119,10 @@ class Grid(BaseModel):
     # the grid file's folder: a section's file option (a reference result) is read relative to it
     _folder: Path | None = PrivateAttr(None)
 
+    def seeds_of(self, pair: PairSpec, method: MethodSpec) -> list[int]:
+        """The seeds a pair's method trains: the pair's own for a method with teachers, else the grid's."""
+        return pair.seeds if pair.seeds is not None and method.uses_teachers else self.seeds
+
     @property
     def baseline_trains_from_scratch(self) -> bool:
         """Whether the baseline has no teachers: then its runs are shared by every pair of a target."""
@@ -127,10 +134,12 @@ class Grid(BaseModel):
 
     @model_validator(mode="after")
     def _no_duplicates(self) -> Grid:
-        cells = len(self.pairs) * len(self.methods) * len(self.seeds)
+        cells = sum(len(p.seeds or self.seeds) for p in self.pairs) * len(self.methods)
         if cells > MAX_GRID_CELLS:
+            seeds = (f"{len(self.seeds):,} seed(s)" if all(p.seeds is None for p in self.pairs)
+                     else "each pair's seeds")
             raise ValueError(f"{cells:,} cells ({len(self.pairs):,} pair(s) × {len(self.methods):,} method(s) × "
-                             f"{len(self.seeds):,} seed(s)); a grid holds at most {MAX_GRID_CELLS:,}")
+                             f"{seeds}); a grid holds at most {MAX_GRID_CELLS:,}")
         # Two methods of one name would share cells and overwrite each other; so would two equal pairs.
         # Report files are named by slugs, so names that differ only in punctuation would overwrite each other.
         for what, keys in (("method name", [m.name for m in self.methods]),
@@ -138,7 +147,8 @@ class Grid(BaseModel):
                            ("pair", [f"{'+'.join(p.teachers)} → {p.to}" for p in self.pairs]),
                            ("pair label", [p.name for p in self.pairs]),
                            ("pair label (as a file name)", [file_slug(p.name) for p in self.pairs]),
-                           ("seed", [str(s) for s in self.seeds])):
+                           ("seed", [str(s) for s in self.seeds]),
+                           *((f"seed of pair {p.name}", [str(s) for s in p.seeds]) for p in self.pairs if p.seeds)):
             dupes = sorted(k for k, n in Counter(keys).items() if n > 1)  # linear: 100,000 seeds took minutes
             if dupes:
                 raise ValueError(f"duplicate {what}: {', '.join(dupes)}")

@@ -11,6 +11,7 @@ from miktcli.registry.cards import describe_code_history
 from miktcli.registry.runs import Run
 from miktcli.stats.across_tasks import Estimate
 from miktcli.studies.aggregates import MEASURES, PROFILE_MEASURE, PROFILE_RESAMPLES, SEED, AcrossPairs, MeasureAggregate
+from miktcli.studies.grid import Grid
 from miktcli.studies.render_figures import PROFILE_FIGURE, SUMMARY_FIGURE, curves_file, draws_summary, weights_file
 from miktcli.studies.summary import MethodSummary, PairSummary, StudySummary, mean_pm_std
 
@@ -98,7 +99,7 @@ def _intro(summary: StudySummary) -> list[str]:
     if draws_summary(summary):
         lines += [f"![every pair]({SUMMARY_FIGURE})", ""]
     return lines + [
-        f"{g.steps:,} steps per run, seeds {g.seeds}, {g.eval_episodes} evaluation episodes per run. "
+        f"{g.steps:,} steps per run, seeds {g.seeds}{_own_seeds(g)}, {g.eval_episodes} evaluation episodes per run. "
         "Returns are the mean training-episode return over the last 100 episodes at each mark (the last "
         "iteration at or before it: the column names that step), then mean ± sample std (ddof 1) over "
         "the n completed seeds; *mean over training* averages that curve over the whole run (area under "
@@ -106,6 +107,11 @@ def _intro(summary: StudySummary) -> list[str]:
         f"*¾ of {g.baseline} final* is the level a quarter of |final| below the baseline's final return "
         "(0.75 × final when it is positive).",
         "", *_teacher_lines(summary)]
+
+
+def _own_seeds(grid: Grid) -> str:
+    own = [f"{p.name}: {p.seeds}" for p in grid.pairs if p.seeds is not None]
+    return f" (with teachers, pairs of their own seeds: {'; '.join(own)})" if own else ""
 
 
 def _teacher_lines(summary: StudySummary) -> list[str]:

@@ -108,14 +108,14 @@ def window_lines(grid: Grid, summary: StudySummary, reference: Reference, method
             row += f" {trend} |"
         end.append(row)
     done = [p for p in grid.pairs if method_of(summary, p.name, method).n]
-    full = all(method_of(summary, p.name, method).n == len(grid.seeds) for p in grid.pairs)
+    full = all(method_of(summary, p.name, method).n == method_of(summary, p.name, method).planned for p in grid.pairs)
     fall_text = (f" The last column is the seed-mean curve at {fall[0] / 1e6:g}M and {fall[1] / 1e6:g}M and its "
                  "lowest value between them." if fall else "")
     fall_count = (f"; the mean curve falls between {fall[0] / 1e6:g}M and {fall[1] / 1e6:g}M on {falls}"
                   if fall else "")
     return [
         f"## `{method}` against {label}, pair by pair", "",
-        f"`{method}` of `{grid.name}`, completed seeds only (n of the grid's {len(grid.seeds)}). {label}: "
+        f"`{method}` of `{grid.name}`, completed seeds only (n of the seeds the grid plans for the pair). {label}: "
         f"{reference.estimator}.", "",
         f"**{label}'s estimator.** Ours: each run's `episode_return_iter` (the mean return of the episodes that "
         f"finished in each rollout, {label}'s `eprewmean`) averaged over the iterations in the "

@@ -16,7 +16,7 @@ def write_tensorboard_tree(grid: Grid, folder: Path, run_of: RunOf) -> None:
     pair it serves."""
     for pair in grid.pairs:
         for method in grid.methods:
-            for seed in grid.seeds:
+            for seed in grid.seeds_of(pair, method):
                 run = run_of(cell_key(pair, method, seed))
                 if run is None:
                     continue

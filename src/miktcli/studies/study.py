@@ -88,7 +88,7 @@ class Study:
 
     def plan(self) -> list[tuple[PairSpec, MethodSpec, int]]:
         """Every (pair, method, seed) of the grid; cells with the same key share one run."""
-        return [(p, m, s) for p in self.grid.pairs for m in self.grid.methods for s in self.grid.seeds]
+        return [(p, m, s) for p in self.grid.pairs for m in self.grid.methods for s in self.grid.seeds_of(p, m)]
 
     def distinct_cells(self) -> list[tuple[PairSpec, MethodSpec, int]]:
         """One entry per run to train: the first cell of each key."""

@@ -83,7 +83,7 @@ def completed_curves(grid: Grid, run_of: RunOf, pair: PairSpec, method: MethodSp
     """Completed runs of a cell group and their return curves on the common iteration grid. A completed run
     whose files are incomplete is left out of both, with the reason appended to `left_out`."""
     runs, curves, shared = [], [], set()
-    for seed in grid.seeds:
+    for seed in grid.seeds_of(pair, method):
         run = run_of(cell_key(pair, method, seed))
         if run is None or run.card.status != "completed":
             continue
@@ -116,11 +116,12 @@ def align_by_step(curves: list[list[tuple[int, float]]]) -> tuple[np.ndarray, np
         len(curves), len(shared))
 
 
-def partial_seed_labels(counts: dict[str, int], seeds: int) -> dict[str, str]:
-    """Legend texts for the curves that average fewer seeds than the grid runs, so that a figure of a study
-    under way cannot be read as a finished one (one seed also has no band)."""
-    return {name: f"{name} ({n} of {seeds} seeds)" for name, n in counts.items()
-            if n < seeds}
+def partial_seed_labels(counts: dict[str, int], seeds: int | dict[str, int]) -> dict[str, str]:
+    """Legend texts for the curves that average fewer seeds than the grid runs (`seeds`: for every curve, or
+    curve by curve), so that a figure of a study under way cannot be read as a finished one (one seed also has
+    no band)."""
+    planned = seeds if isinstance(seeds, dict) else dict.fromkeys(counts, seeds)
+    return {name: f"{name} ({n} of {planned[name]} seeds)" for name, n in counts.items() if n < planned[name]}
 
 
 def compare_methods(per_seed: PerSeed) -> list[dict[str, Any]]:
@@ -158,6 +159,7 @@ class MethodSummary:
     reach_75: str = "—"  # steps to ¾ of it
     final_weights: dict[str, float] | None = None  # learned student weights (p_pi_j, p_vf_j), mean over runs
     weight_curves: dict[str, Curve] | None = None  # each weight over training, mean over runs
+    planned: int = 0  # the seeds the grid plans for it on this pair (Grid.seeds_of)
 
     @property
     def n(self) -> int:
@@ -264,7 +266,8 @@ def summarise(grid: Grid, cell_runs: dict[str, str], run_of: RunOf) -> StudySumm
         for method in grid.methods:
             runs, steps, curves = data[method.name]
             if not runs:
-                methods.append(MethodSummary(method.name, [], steps, curves, np.zeros(0)))
+                methods.append(MethodSummary(method.name, [], steps, curves, np.zeros(0),
+                                             planned=len(grid.seeds_of(pair, method))))
                 continue
             evals = np.asarray([r.card.result["eval_without_teacher"]["return_mean"] for r in runs])  # unusable
             reach = reach_75 = "—"
@@ -274,7 +277,7 @@ def summarise(grid: Grid, cell_runs: dict[str, str], run_of: RunOf) -> StudySumm
                                    for level in (base_final, three_quarters_level(base_final)))
             final_weights, weight_curves = _weights(method.name, runs)
             methods.append(MethodSummary(method.name, runs, steps, curves, evals, reach, reach_75, final_weights,
-                                         weight_curves))
+                                         weight_curves, len(grid.seeds_of(pair, method))))
         comparisons = compare_methods({m.name: m.per_seed for m in methods if m.runs})
         pairs.append(PairSummary(pair.name, file_slug(pair.name), marks, labels, methods, comparisons))
     cells = [(key, run_id, run_of(key)) for key, run_id in cell_runs.items()]
@@ -313,7 +316,7 @@ def teacher_versions(grid: Grid, run_of_cell: dict[str, Run | None]) -> dict[str
         for method in grid.methods:
             if not method.uses_teachers:
                 continue
-            for seed in grid.seeds:
+            for seed in grid.seeds_of(pair, method):
                 run = run_of_cell.get(cell_key(pair, method, seed))
                 if run is None or run.id in seen:
                     continue
