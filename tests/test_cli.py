@@ -8,7 +8,7 @@ from helpers import mikt
 def test_envs_json_parses():
     data = json.loads(mikt("envs", "--json").stdout)
     dims = {d["name"]: (d["obs_dim"], d["act_dim"]) for d in data}
-    assert dims["centipede-six"] == (139, 16) and dims["ant"] == (111, 8) and len(dims) == 8
+    assert dims["centipede-six"] == (139, 16) and dims["ant"] == (111, 8) and len(dims) == 10
 
 
 def test_envs_show_and_render(tmp_path):

@@ -9,7 +9,8 @@ from miktcli.errors import MiktError
 SHIPPED = {
     "centipede-four": (97, 10), "centipede-six": (139, 16), "centipede-eight": (181, 22),
     "cp-centipede-six": (139, 12), "cp-centipede-eight": (181, 18), "ant": (111, 8), "hopper": (11, 3),
-    "centipede-eight-zero-contacts": (181, 22),
+    "centipede-eight-zero-contacts": (181, 22), "centipede-six-zero-contacts": (139, 16),
+    "cp-centipede-eight-zero-contacts": (181, 18),
 }
 
 
