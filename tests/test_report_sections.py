@@ -64,3 +64,17 @@ def test_a_bad_option_is_one_line_naming_the_options(registry, tmp_path):
     output = mikt("study", grid_asking(tmp_path, '[[report]]\nsection = "pairs"\n'), code=1).output
     assert "'pairs' is in every report already" in output
     assert not (registry / "runs").exists()
+
+
+def test_a_reference_run_may_stand_for_a_target_of_another_name(tmp_path):
+    """`targets = { OURS = THEIRS }`: the reference's run on THEIRS is set beside our pair on OURS (CAT's
+    centipede-eight saw what centipede-eight-zero-contacts shows); its other runs stay as they were."""
+    from miktcli.studies.reference import load_reference
+    from miktcli.studies.sections import ReferenceOptions
+
+    (tmp_path / "theirs.toml").write_text(REFERENCE)
+    reference = load_reference(tmp_path / "theirs.toml").on_targets({"hopper-zero": "hopper", "ant-x": "ant"})
+    assert reference.run_for("a+b", "hopper-zero").returns == [10, 50]
+    assert reference.run_for("a+b", "hopper").returns == [10, 50] and reference.run_for("a+b", "ant-x") is None
+    assert ReferenceOptions(file="f", method="m", targets={"hopper-zero": "hopper"}).targets == {
+        "hopper-zero": "hopper"}

@@ -82,6 +82,13 @@ class Reference(BaseModel):
             raise ValueError("every run's ramp needs one student weight per ramp_marks entry")
         return self
 
+    def on_targets(self, targets: dict[str, str]) -> Reference:
+        """The same runs, each also under the names of ours that `targets` maps to its target (our target →
+        the reference's): a reference run on another env name that stands for ours."""
+        renamed = [r.model_copy(update={"to": ours}) for ours, theirs in targets.items()
+                   for r in self.runs if r.to == theirs]
+        return self.model_copy(update={"runs": [*self.runs, *renamed]})
+
     def run_for(self, teachers: str, to: str) -> ReferenceRun | None:
         """The reference's run of these teachers ("a+b", versions left out) and target, if it has one."""
         return next((r for r in self.runs if "+".join(r.teachers) == teachers and r.to == to), None)

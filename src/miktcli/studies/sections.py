@@ -172,6 +172,9 @@ class ReferenceOptions(BaseModel):
     method: str = Field(description="the grid's method set beside it")
     label: str = Field("the reference", min_length=1, max_length=40, description="its name in the report")
     fall: tuple[int, int] | None = Field(None, description="two steps: does the seed-mean curve fall between?")
+    targets: dict[str, str] = Field(default_factory=dict, description="our target → the reference's, where the "
+                                    "reference's runs stand for ours under another name (CAT's centipede-eight "
+                                    "saw what centipede-eight-zero-contacts shows)")
 
     def check(self, grid: Grid, where: str) -> ReferenceOptions:
         if self.method not in {m.name for m in grid.methods}:
@@ -185,8 +188,8 @@ def _reference(given: SectionInput) -> Rendered:
     o, grid = given.options, given.summary.grid
     if not isinstance(o, ReferenceOptions):
         raise TypeError(f"the reference section was given {type(o).__name__}, not its options")
-    return Rendered(reference_lines(grid, given.summary, load_reference(grid.folder / o.file), o.method, o.label,
-                                    o.fall))
+    reference = load_reference(grid.folder / o.file).on_targets(o.targets)
+    return Rendered(reference_lines(grid, given.summary, reference, o.method, o.label, o.fall))
 
 
 register(Section("reference", "a method beside another implementation's published figures (e.g. CAT's logs), "
