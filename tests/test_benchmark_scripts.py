@@ -233,6 +233,7 @@ def test_an_in_flight_snapshot_carries_an_unfinished_run_to_another_machine(regi
     assert len(updates) == 2
     snapshot_script(*script)  # the finished snapshot supersedes the in-flight one
     assert (out / "runs" / run_id / "run.json").exists() and not kept.exists()
+    assert not (out / "in-flight").exists()  # nor its folder, once the last in-flight run has finished
 
 def test_every_committed_grid_loads():
     from miktcli.studies.grid import load_grid

@@ -21,6 +21,7 @@ no checkpoint or student file, so `mikt eval` says it cannot evaluate it.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 from pathlib import Path
@@ -69,6 +70,8 @@ def snapshot(results: Path, registry: Path, in_flight: bool = False) -> list[Cop
         _copy_files(source, results / "runs" / run_id, FINISHED_FILES)
         shutil.rmtree(results / IN_FLIGHT / run_id, ignore_errors=True)  # superseded by the finished run
         copied.append(Copied(run_id, cell, "completed, copied"))
+    with contextlib.suppress(OSError):  # the last in-flight run finished: no empty folder left to puzzle over
+        (results / IN_FLIGHT).rmdir()
     return copied
 
 
