@@ -11,15 +11,14 @@ import json
 
 from miktcli import limits
 from miktcli.envs.mjcf import model_files
-from miktcli.envs.spec import CENTIPEDE_LATER_DEFAULTS, MJCF_LATER_DEFAULTS, AnySpec, CentipedeSpec, MjcfSpec
+from miktcli.envs.spec import LATER_DEFAULTS, AnySpec, MjcfSpec
 
 
 def spec_record(spec: AnySpec) -> dict:
     """The spec as its fields read (paths as written in the file, not where it lies now); a field added
     later is left out at its default, so a spec written before it existed keeps its fingerprint."""
     record = spec.model_dump(mode="json")
-    later = (MJCF_LATER_DEFAULTS if isinstance(spec, MjcfSpec)
-             else CENTIPEDE_LATER_DEFAULTS if isinstance(spec, CentipedeSpec) else {})
+    later = LATER_DEFAULTS.get(type(spec), {})
     return {k: v for k, v in record.items() if k not in later or v != later[k]}
 
 

@@ -152,12 +152,14 @@ class MjcfSpec(_SpecBase):
         return self._folder / path
 
 
-# Fields added to MjcfSpec after runs had recorded specs (and their fingerprints) without them: at their default
-# they are left out of a spec's record, so that an older run's spec still reads as the same task.
-MJCF_LATER_DEFAULTS: dict[str, Any] = {"keyframe": None, "action_map": "raw", "floor": False, "remove": []}
-CENTIPEDE_LATER_DEFAULTS: dict[str, Any] = {"contact_readings": "live"}
-
 AnySpec = CentipedeSpec | GymnasiumSpec | MjcfSpec
+
+# Fields added to a spec family after runs had recorded specs (and their fingerprints) without them: at their
+# default they are left out of a spec's record, so that an older run's spec still reads as the same task.
+LATER_DEFAULTS: dict[type[AnySpec], dict[str, Any]] = {
+    MjcfSpec: {"keyframe": None, "action_map": "raw", "floor": False, "remove": []},
+    CentipedeSpec: {"contact_readings": "live"},
+}
 EnvSpec = Annotated[AnySpec, Field(discriminator="family")]
 _spec_adapter: TypeAdapter[AnySpec] = TypeAdapter(EnvSpec)
 

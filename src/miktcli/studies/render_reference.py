@@ -108,7 +108,7 @@ def window_lines(grid: Grid, summary: StudySummary, reference: Reference, method
             row += f" {trend} |"
         end.append(row)
     done = [p for p in grid.pairs if method_of(summary, p.name, method).n]
-    full = all(method_of(summary, p.name, method).n == method_of(summary, p.name, method).planned for p in grid.pairs)
+    full = all(m.n == m.planned for m in (method_of(summary, p.name, method) for p in grid.pairs))
     fall_text = (f" The last column is the seed-mean curve at {fall[0] / 1e6:g}M and {fall[1] / 1e6:g}M and its "
                  "lowest value between them." if fall else "")
     fall_count = (f"; the mean curve falls between {fall[0] / 1e6:g}M and {fall[1] / 1e6:g}M on {falls}"
