@@ -1,9 +1,11 @@
 """Does a change of numerics change learning? Paired seeds, two commands that differ in one flag.
 
     python benchmarks/paired_numerics.py --seeds 2-11 --mark 300000 [--out FILE.json] \\
-        [--a=--compile] [--b=--no-compile] [--base "teacher train hopper --steps 2000000"]
+        [--a=--compile] [--b=--no-compile] [--base "teacher train hopper --steps 2000000"] [--lanes 1]
 
-For each seed, runs `mikt BASE --seed S A` and `mikt BASE --seed S B` one after the other (never two at once),
+For each seed, runs `mikt BASE --seed S A` and `mikt BASE --seed S B` one after the other (with `--lanes N`, N
+seeds at once, one process per lane: what a run learns does not depend on its speed, so lanes change the
+wall-clock time only; never more lanes than cores),
 each stopped (SIGTERM: the run stays resumable) once its metrics pass the mark, and reads the mean return of
 the last 100 training episodes at the mark. The budget stays BASE's (2M), so the LR and any schedule are those
 of a 2M run read at the mark, not of a run whose budget is the mark. Prints per-seed returns, the paired
@@ -26,6 +28,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from scipy.stats import wilcoxon
@@ -58,6 +61,19 @@ def return_at_mark(base: str, flag: str, seed: int, mark: int) -> float:
         raise SystemExit(f"{' '.join(cmd)} ended (exit {proc.returncode}) before step {mark:,}")
 
 
+def commit() -> str:
+    """The code's commit, with "+changes" when the work tree differs from it."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+changes" if dirty else "")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="2-11")
@@ -66,15 +82,20 @@ def main() -> None:
     parser.add_argument("--a", default="--compile")
     parser.add_argument("--b", default="--no-compile")
     parser.add_argument("--out", type=Path)
+    parser.add_argument("--lanes", type=int, default=1, help="seeds trained at once (each A then B)")
     args = parser.parse_args()
-    rows = []
-    for seed in seeds_of(args.seeds):
+
+    def paired(seed: int) -> dict:
         a, b = (return_at_mark(args.base, flag, seed, args.mark) for flag in (args.a, args.b))
-        rows.append({"seed": seed, "a": a, "b": b})
         print(f"seed {seed}: {args.a} {a:,.0f}  {args.b} {b:,.0f}", file=sys.stderr)
+        return {"seed": seed, "a": a, "b": b}
+
+    with ThreadPoolExecutor(max_workers=max(1, args.lanes)) as lanes:
+        rows = list(lanes.map(paired, seeds_of(args.seeds)))
     diffs = [r["a"] - r["b"] for r in rows]
     summary = {
-        "date": time.strftime("%Y-%m-%d"), "command": " ".join(sys.argv), "a": args.a, "b": args.b,
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "command": " ".join(sys.argv),
+        "commit": commit(), "a": args.a, "b": args.b,
         "mark": args.mark, "rows": rows,
         "mean_a": statistics.mean(r["a"] for r in rows), "mean_b": statistics.mean(r["b"] for r in rows),
         "paired_difference_mean": statistics.mean(diffs),

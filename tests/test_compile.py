@@ -111,7 +111,8 @@ def test_the_card_records_the_choice_and_its_reason(registry):
     from miktcli.cli.app import app
     from miktcli.registry.runs import open_run
 
-    result = CliRunner().invoke(app, ["teacher", "train", "hopper", "--steps", "2048", "--name", "h"])
+    result = CliRunner().invoke(app, ["teacher", "train", "hopper", "--steps", "2048", "--name", "h",
+                                      "--ppo", "gradients=autograd"])  # by hand is the default (test_by_hand)
     assert result.exit_code == 0, result.output
     assert "update: eager (auto: off, 2,048 steps is below 500,000" in result.output
     ppo = open_run(registry, "run1").card.config.ppo

@@ -84,6 +84,10 @@ def change_update_mode_on_resume(run, compile_loss: bool | None) -> None:
     from miktcli.engine.compile_choice import change_on_resume
 
     ppo = run.card.config.ppo
+    if compile_loss is not None and ppo.gradients == "by-hand":
+        raise MiktError(f"{run.id} computes its gradient by hand (gradients=by-hand): --compile and --no-compile "
+                        "choose between autograd's paths, and a run keeps its gradient path on resume",
+                        hint=f"resume without {'--compile' if compile_loss else '--no-compile'}")
     if compile_loss is None or compile_loss == ppo.compile_loss:
         return
     reason = change_on_resume(ppo.compile_reason, compile_loss, run.card.steps_done)
@@ -153,9 +157,11 @@ def note_teacher_env(card) -> None:
 
 
 def note_compile(run) -> None:
-    """Say on stderr which update runs (compiled or eager) and why, as the card records it."""
+    """Say on stderr which update runs (by hand, compiled or eager) and why, as the card records it."""
     from miktcli.cli.console import err
 
     ppo = run.card.config.ppo
-    if ppo.compile_reason:
+    if ppo.gradients == "by-hand":
+        err.print("update: by hand (gradients=by-hand; --ppo gradients=autograd for autograd's)")
+    elif ppo.compile_reason:
         err.print(f"update: {'compiled' if ppo.compile_loss else 'eager'} ({ppo.compile_reason})")

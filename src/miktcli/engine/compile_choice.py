@@ -17,6 +17,8 @@ import os
 import shutil
 import subprocess
 
+from miktcli.errors import MiktError
+
 AUTO_MIN_STEPS = 500_000
 
 
@@ -46,8 +48,33 @@ def change_on_resume(recorded: str, compiled: bool, step: int) -> str:
            f"({'--compile' if compiled else '--no-compile'})"
 
 
-def decide_compile(requested: bool | None, total_steps: int) -> tuple[bool, str]:
-    """(compile or not, the reason recorded in the card). requested: True/False asked, None for auto."""
+def decide_gradients(asked: str | None, plain_actor_critic: bool, together: bool,
+                     compile_asked: bool | None = None) -> str:
+    """PPOConfig.gradients for a new run: as asked (`--ppo gradients=…`, a grid's ppo); else autograd where
+    --compile or --no-compile chose one of autograd's paths; else by hand wherever it can be (engine/by_hand.py:
+    the plain actor-critic of PPO, VPG and MLPP, one seed at a time), else autograd. A by-hand request it
+    cannot take is refused here, before any run folder is made."""
+    if asked == "by-hand" and not plain_actor_critic:
+        raise MiktError("gradients=by-hand: only the plain actor-critic (teacher training, vpg, mlpp) has its "
+                        "gradient by hand; a transfer method with teachers needs gradients=autograd")
+    if asked == "by-hand" and together:
+        raise MiktError("gradients=by-hand trains one seed at a time; seeds together (--seeds, a grid's "
+                        "seeds_together) needs gradients=autograd")
+    if asked is not None:
+        return asked
+    if compile_asked is not None:
+        return "autograd"
+    return "by-hand" if plain_actor_critic and not together else "autograd"
+
+
+def decide_compile(requested: bool | None, total_steps: int, by_hand: bool = False) -> tuple[bool, str]:
+    """(compile or not, the reason recorded in the card). requested: True/False asked, None for auto.
+    by_hand: the run's gradient is by hand (PPOConfig.gradients), so there is no loss to compile."""
+    if by_hand:
+        if requested is True:
+            raise MiktError("--compile: a run with gradients=by-hand computes no loss to compile; drop --compile, "
+                            "or set --ppo gradients=autograd")
+        return False, "off: the gradient is by hand (gradients=by-hand), nothing to compile"
     if requested is True:
         return True, "on: asked (--compile)"
     if requested is False:

@@ -22,6 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from miktcli import compat
 from miktcli.engine.adam import FusedAdam
+from miktcli.engine.by_hand import HandGradients, unsupported
 from miktcli.engine.flatparams import FlatParameters
 from miktcli.engine.nets import update_moments
 from miktcli.engine.policies import ActorCritic, gaussian_kl, gaussian_log_prob
@@ -82,6 +83,11 @@ class PPOConfig(BaseModel):
         "~30 s at the start and after a resume; needs a C++ compiler")
     compile_reason: str = Field("", description="why compile_loss is on or off: asked (--compile, --no-compile) "
                                 "or decided by auto from the run's size (see compile_choice.py)")
+    gradients: Literal["autograd", "by-hand"] = Field(
+        "autograd", description="how the update's gradient is computed: autograd (eager or compiled), or "
+        "by-hand: the loss and its chain rule written out (engine/by_hand.py), the same maths to float rounding "
+        "and several times fewer ops; only the plain actor-critic (PPO, VPG, MLPP, teacher training), one seed "
+        "at a time, never compiled")
 
     @property
     def batch_size(self) -> int:
@@ -298,9 +304,18 @@ class PPOTrainer:
         self.flat = FlatParameters([p for p in agent.parameters() if p.requires_grad])
         self.optimizer = FusedAdam([self.flat.flat], lr=config.learning_rate, eps=config.adam_eps)
         self._minibatch_loss = compiled(self.loss) if config.compile_loss else self.loss
+        self._by_hand = self._hand_gradients() if config.gradients == "by-hand" else None
         self.recent_returns: deque[float] = deque(maxlen=100)
         self.recent_lengths: deque[int] = deque(maxlen=100)
         self.episodes = 0
+
+    def _hand_gradients(self) -> HandGradients:
+        why = unsupported(self.agent)
+        if why is not None:
+            raise MiktError(f"gradients=by-hand: {why}; train with gradients=autograd")
+        if self.config.compile_loss:
+            raise MiktError("gradients=by-hand computes no loss to compile: train with --no-compile")
+        return HandGradients(self.agent, self.config)
 
     # --- rollout ------------------------------------------------------------------------------------
     def rollout_collector(self, obs_in: np.ndarray | None = None) -> RolloutCollector:
@@ -423,10 +438,13 @@ class PPOTrainer:
             # One gather per epoch; each minibatch is then a contiguous slice (a view, no copy).
             shuffled = batch.take(torch.randperm(size, generator=self.torch_gen))
             for start in range(0, size, cfg.minibatch_size):
-                loss, logs = self._minibatch_loss(shuffled.take(slice(start, start + cfg.minibatch_size)),
-                                                  old_log_std)
-                self.flat.zero_grad()
-                loss.backward()
+                mb = shuffled.take(slice(start, start + cfg.minibatch_size))
+                if self._by_hand is not None:
+                    logs = self._by_hand(mb, old_log_std)  # writes every gradient itself
+                else:
+                    loss, logs = self._minibatch_loss(mb, old_log_std)
+                    self.flat.zero_grad()
+                    loss.backward()
                 logs["grad_norm"] = self.flat.clip_grad_norm(cfg.max_grad_norm)
                 self.optimizer.step()
                 if not logged:

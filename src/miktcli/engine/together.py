@@ -78,6 +78,9 @@ def check_alike(trainers: list[PPOTrainer]) -> None:
             raise ValueError(f"seeds trained together start at one iteration ({first.iteration} and {t.iteration})")
         if type(t.agent) is not type(first.agent) or [tuple(p.shape) for p in t.flat.params] != shapes:
             raise ValueError("seeds trained together need agents of one shape")
+    if first.config.gradients != "autograd":  # the stacked update is autograd's; a card must say what ran
+        raise ValueError(f"seeds together computes its gradients with autograd; these runs say "
+                         f"gradients={first.config.gradients}")
 
 
 class SeedsTogether:

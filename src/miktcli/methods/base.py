@@ -38,6 +38,9 @@ class Method:
     # Maps the target observation to each teacher's state dimension (an encoder per teacher), so a stated
     # encoder width is checked against the teacher's card.
     encoder_per_teacher: bool = False
+    # Its agent is the plain Gaussian actor-critic, every parameter trained: its update can have its gradient
+    # by hand (engine/by_hand.py), which new runs then do unless told otherwise (PPOConfig.gradients).
+    plain_actor_critic: bool = False
 
     def parse_options(self, values: dict | None) -> BaseModel | None:
         if self.options is None:

@@ -27,4 +27,5 @@ def build(obs_dim: int, act_dim: int, teachers: list[GaussianActorCritic],
 
 
 METHOD = Method(name="mlpp", summary="the teacher's middle layers as initialisation, all fine-tuned",
-                min_teachers=1, max_teachers=1, default_kl_coef=0.0, options=None, build=build, student=keep_agent)
+                min_teachers=1, max_teachers=1, default_kl_coef=0.0, options=None, build=build, student=keep_agent,
+                plain_actor_critic=True)

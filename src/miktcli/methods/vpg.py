@@ -14,7 +14,8 @@ def build(obs_dim: int, act_dim: int, teachers: list[GaussianActorCritic],
 
 
 METHOD = Method(name="vpg", summary="PPO from scratch", min_teachers=0, max_teachers=0, default_kl_coef=0.0,
-                options=None, build=build, student=keep_agent)
+                options=None, build=build, student=keep_agent, plain_actor_critic=True)
 # `mikt teacher train` runs are recorded as method "ppo": the same agent, not offered by `mikt transfer`.
 TEACHER_PPO = Method(name="ppo", summary="PPO (teacher training)", min_teachers=0, max_teachers=0,
-                     default_kl_coef=0.0, options=None, build=build, student=keep_agent, for_transfer=False)
+                     default_kl_coef=0.0, options=None, build=build, student=keep_agent, plain_actor_critic=True,
+                     for_transfer=False)

@@ -222,7 +222,7 @@ class Study:
                 steps=self.grid.steps,
                 seed=seed, command=f"{command}  # cell {key}", kl_coef=method.kl_coef, options=method.options,
                 compile_loss=self.grid.compile_loss, eval_episodes=self.grid.eval_episodes,
-                ppo_settings=method.ppo,
+                ppo_settings=method.ppo, together=self.grid.seeds_together,
             )
             self.state.remember(key, run.id, write=False)
             created = True

@@ -8,7 +8,7 @@ from collections.abc import Generator
 from pathlib import Path
 from typing import Any
 
-from miktcli.engine.compile_choice import decide_compile
+from miktcli.engine.compile_choice import decide_compile, decide_gradients
 from miktcli.engine.nets import OBS_CLIP
 from miktcli.engine.ppo import PPOConfig
 from miktcli.envs.fingerprint import spec_fingerprint
@@ -34,8 +34,11 @@ def start_teacher(registry: Path, *, env: str, steps: int, seed: int, command: s
     """Check everything, then create the run folder of a teacher (PPO from scratch on `env`).
     compile_loss: True/False as asked, None to decide from the run's size (compile_choice.py)."""
     sizes = hidden or [64, 64]
-    compiled, reason = decide_compile(compile_loss, steps)
-    ppo = PPOConfig.with_settings(dict(ppo_settings or {}), num_envs=None if num_envs == 1 else num_envs,
+    settings = dict(ppo_settings or {})
+    settings["gradients"] = decide_gradients(settings.get("gradients"), plain_actor_critic=True, together=False,
+                                             compile_asked=compile_loss)
+    compiled, reason = decide_compile(compile_loss, steps, by_hand=settings["gradients"] == "by-hand")
+    ppo = PPOConfig.with_settings(settings, num_envs=None if num_envs == 1 else num_envs,
                                   compile_loss=compiled, compile_reason=reason)
     config = RunConfig(ppo=ppo,
                        pi_hidden=sizes, vf_hidden=sizes, teacher_name=check_name(env if name is None else name))

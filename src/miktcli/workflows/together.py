@@ -35,7 +35,7 @@ def parse_seeds(text: str) -> list[int]:
 
 def start_transfers_together(registry: Path, seeds: list[int], **transfer: Any) -> list[Run]:
     """One run folder per seed (start_transfer's checks, each), marked as trained together."""
-    runs = [start_transfer(registry, seed=seed, **transfer) for seed in seeds]
+    runs = [start_transfer(registry, seed=seed, together=True, **transfer) for seed in seeds]
     mark_together(runs)
     return runs
 

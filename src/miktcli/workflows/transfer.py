@@ -10,7 +10,7 @@ from typing import Any
 import torch
 
 from miktcli import limits
-from miktcli.engine.compile_choice import decide_compile
+from miktcli.engine.compile_choice import decide_compile, decide_gradients
 from miktcli.engine.episodes import evaluation_summary
 from miktcli.engine.policies import GaussianActorCritic
 from miktcli.engine.ppo import PPOConfig
@@ -64,10 +64,11 @@ def start_transfer(
     registry: Path, *, to: str, method: str, teacher_refs: list[str], steps: int, seed: int, command: str,
     kl_coef: float | None = None, num_envs: int = 1, options: dict[str, Any] | None = None,
     encoder_widths: list[int] | None = None, hidden: list[int] | None = None, compile_loss: bool | None = None,
-    eval_episodes: int = 10, ppo_settings: dict[str, Any] | None = None,
+    eval_episodes: int = 10, ppo_settings: dict[str, Any] | None = None, together: bool = False,
 ) -> Run:
     """Check everything a transfer needs, then create its run folder (not yet trained).
-    compile_loss: True/False as asked, None to decide from the run's size (compile_choice.py)."""
+    compile_loss: True/False as asked, None to decide from the run's size (compile_choice.py). together: the
+    run is one of a cell's seeds trained in one process (its update is then autograd's, stacked)."""
     check_count("--eval-episodes", eval_episodes, limits.MAX_EPISODES)
     m = get_method(method)
     m.check_teacher_count(len(teacher_refs))
@@ -87,8 +88,10 @@ def start_transfer(
         by_content[sha] = ref
     sizes = (check_teachers(teachers, encoder_widths if m.encoder_per_teacher else None, hidden) if teachers
              else (hidden or DEFAULT_HIDDEN, hidden or DEFAULT_HIDDEN))
-    compiled, reason = decide_compile(compile_loss, steps)
     settings = dict(ppo_settings or {})
+    settings["gradients"] = decide_gradients(settings.get("gradients"), m.plain_actor_critic, together,
+                                             compile_asked=compile_loss)
+    compiled, reason = decide_compile(compile_loss, steps, by_hand=settings["gradients"] == "by-hand")
     if kl_coef is None and "kl_coef" not in settings:
         kl_coef = m.default_kl_coef
     ppo = PPOConfig.with_settings(settings, num_envs=None if num_envs == 1 else num_envs, kl_coef=kl_coef,
