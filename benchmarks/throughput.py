@@ -137,12 +137,12 @@ def physics_replay_us(steps: int, seed: int) -> float:
 
 # --- 2. in process ----------------------------------------------------------------------------------------
 def engine_run(steps: int, seed: int, compile_loss: bool = False, env: str = "ant",
-               teachers: list[str] | None = None) -> dict:
-    """This engine's PPO on Ant: the eager update (what `mikt teacher train` runs at this size), or the compiled
-    one (what it runs by default from AUTO_MIN_STEPS, e.g. at the paper's 2M; compiled in the warm-up). With
+               teachers: list[str] | None = None, gradients: str = "autograd") -> dict:
+    """This engine's PPO on Ant: autograd's eager update, or its compiled one (compiled in the warm-up), or the
+    gradient by hand (gradients="by-hand": what `mikt teacher train` and PPO from scratch run by default). With
     `teachers`, MIKT on `env` with the teacher active and coupled throughout (the first 90 % of a run)."""
     torch.manual_seed(seed)
-    config = PPOConfig(compile_loss=compile_loss, kl_coef=0.05 if teachers else 0.0)
+    config = PPOConfig(compile_loss=compile_loss, kl_coef=0.05 if teachers else 0.0, gradients=gradients)
     if teachers:
         agent = mikt_agent(env, teachers)
     else:
@@ -201,6 +201,7 @@ def process_commands(steps_teacher: int, steps_transfer: int) -> dict[str, list[
                                    "--name", "bench-ant"],
         "sb3_ppo_script": [py, str(ROOT / "benchmarks" / "sb3_ppo_script.py"), "--steps", str(steps_teacher)],
         "ppo_from_scratch_eight": [*transfer, "--method", "vpg"],
+        "ppo_from_scratch_eight_autograd": [*transfer, "--method", "vpg", "--ppo", "gradients=autograd"],
         "one_teacher_six_to_eight": [*transfer, "--from", "centipede-six"],
         "two_teachers_four_six_to_eight": [*transfer, "--from", "centipede-four", "--from", "centipede-six"],
     }
@@ -329,7 +330,13 @@ def update_pieces(repeats: int, compiled: bool) -> dict:
             agent = GaussianActorCritic(111, 8) if teachers is None else mikt_agent(env, teachers)
             config = PPOConfig(n_steps=256, epochs=1, compile_loss=comp, kl_coef=0.0 if teachers is None else 0.05)
             trainer = PPOTrainer(agent, lambda e=env: make_env(e), config, 10**6, 0)
-            batches[comp] = trainer._values_and_targets(trainer.collect()[0])
+            if teachers is None and not comp:  # the plain actor-critic also has its gradient by hand
+                torch.manual_seed(0)
+                hand = PPOTrainer(GaussianActorCritic(111, 8), lambda e=env: make_env(e),
+                                  config.model_copy(update={"gradients": "by-hand"}), 10**6, 0)
+                hand.update(batches.setdefault("by-hand", hand._values_and_targets(hand.collect()[0])))
+                trainers["by-hand"] = hand
+            batches[comp] = trainer._values_and_targets(trainer.collect()[0])  # by hand: its own, before
             t = time.perf_counter()
             trainer.update(batches[comp])  # compiles (compiled) / warms up (eager)
             first[comp] = time.perf_counter() - t
@@ -339,6 +346,8 @@ def update_pieces(repeats: int, compiled: bool) -> dict:
             for comp, trainer in trainers.items():
                 best[comp] = min(best[comp], best_time(lambda tr=trainer, b=batches[comp]: tr.update(b), 3, 1) / 4)
         row = {"eager_us_per_minibatch": 1e6 * best[False]}
+        if "by-hand" in best:
+            row["by_hand_us_per_minibatch"] = 1e6 * best["by-hand"]
         if compiled:
             row["compiled_us_per_minibatch"] = 1e6 * best[True]
             row["compile_s"] = first[True] - first[False]
@@ -360,12 +369,19 @@ def ratios(res: dict) -> dict:
     if "engine_compiled" in res["in_process"]:
         r["ppo_compiled_vs_sb3"] = (res["in_process"]["engine_compiled"]["steps_per_sec"]
                                     / res["in_process"]["sb3"]["steps_per_sec"])
+    if "engine_by_hand" in res["in_process"]:
+        r["ppo_by_hand_vs_sb3"] = (res["in_process"]["engine_by_hand"]["steps_per_sec"]
+                                   / res["in_process"]["sb3"]["steps_per_sec"])
     wp = res.get("whole_process")
     if wp:
         r["teacher_vs_sb3_script"] = wp["sb3_ppo_script"]["wall_s"] / wp["mikt_teacher_train_ant"]["wall_s"]
         base = wp["ppo_from_scratch_eight"]["wall_s"]
         r["one_teacher_vs_ppo"] = wp["one_teacher_six_to_eight"]["wall_s"] / base
         r["two_teachers_vs_ppo"] = wp["two_teachers_four_six_to_eight"]["wall_s"] / base
+        if "ppo_from_scratch_eight_autograd" in wp:  # the same PPO with autograd's update, as before by-hand
+            autograd = wp["ppo_from_scratch_eight_autograd"]["wall_s"]
+            r["one_teacher_vs_ppo_autograd"] = wp["one_teacher_six_to_eight"]["wall_s"] / autograd
+            r["two_teachers_vs_ppo_autograd"] = wp["two_teachers_four_six_to_eight"]["wall_s"] / autograd
     if "seeds_together" in res:
         r["seeds_together_vs_separate"] = res["seeds_together"]["separate_s"] / res["seeds_together"]["together_s"]
     study = res.get("study_speed")
@@ -403,9 +419,14 @@ def markdown(res: dict) -> str:
     ]
     comp = ip.get("engine_compiled")
     if comp:
-        lines.append(f"| the same, compiled update (the default from {AUTO_MIN_STEPS:,} steps, e.g. the paper's 2M) "
-                     f"| {fmt(comp['steps_per_sec'])} steps/s | {fmt(sb3['steps_per_sec'])} steps/s | "
+        lines.append(f"| the same, compiled update (autograd's default from {AUTO_MIN_STEPS:,} steps, e.g. the "
+                     f"paper's 2M) | {fmt(comp['steps_per_sec'])} steps/s | {fmt(sb3['steps_per_sec'])} steps/s | "
                      f"{r['ppo_compiled_vs_sb3']:.2f}× | ≥ {TARGETS['ppo_vs_sb3']}× |")
+    hand = ip.get("engine_by_hand")
+    if hand:
+        lines.append(f"| the same, gradient by hand (the default of PPO, VPG, MLPP and teacher runs alone) | "
+                     f"{fmt(hand['steps_per_sec'])} steps/s | {fmt(sb3['steps_per_sec'])} steps/s | "
+                     f"{r['ppo_by_hand_vs_sb3']:.2f}× | ≥ {TARGETS['ppo_vs_sb3']}× |")
     wp = res.get("whole_process")
     if wp:
         base = wp["ppo_from_scratch_eight"]["wall_s"]
@@ -420,11 +441,21 @@ def markdown(res: dict) -> str:
             f"{wp['two_teachers_four_six_to_eight']['wall_s']:.1f} s | {base:.1f} s | "
             f"{r['two_teachers_vs_ppo']:.2f}× the time | ≤ {TARGETS['two_teachers_vs_ppo']}× |",
         ]
+        if "one_teacher_vs_ppo_autograd" in r:
+            autograd = wp["ppo_from_scratch_eight_autograd"]["wall_s"]
+            lines += [
+                f"| the same two against PPO from scratch with autograd's update (`--ppo gradients=autograd`, "
+                f"{autograd:.1f} s) | one teacher {wp['one_teacher_six_to_eight']['wall_s']:.1f} s, two "
+                f"{wp['two_teachers_four_six_to_eight']['wall_s']:.1f} s | {autograd:.1f} s | "
+                f"{r['one_teacher_vs_ppo_autograd']:.2f}× and {r['two_teachers_vs_ppo_autograd']:.2f}× the time | "
+                f"≤ {TARGETS['one_teacher_vs_ppo']}× and ≤ {TARGETS['two_teachers_vs_ppo']}× |",
+            ]
     if "seeds_together" in res:
         lines += seeds_together_markdown(res)
     if wp:
-        lines += ["", f"The whole-process runs are below {AUTO_MIN_STEPS:,} steps, so their update is eager (auto); "
-                  "each command's stderr names the path and its card records it."]
+        lines += ["", "In the whole-process runs, teacher training and PPO from scratch have their gradient by hand "
+                  f"(the default); the transfers are below {AUTO_MIN_STEPS:,} steps, so their update is autograd's "
+                  "eager one (auto). Each command's stderr names the path and its card records it."]
     study = res.get("study_speed")
     if study:
         ppo = study["ppo"]
@@ -439,6 +470,8 @@ def markdown(res: dict) -> str:
                               for name, u in ((n, study[n]["us_per_step"]) for n in STUDY_RUNS)) + "."]
     us = eng["us_per_step"]
     compiled_update = f", {comp['us_per_step']['update']:.0f} compiled" if comp else ""
+    if hand:
+        compiled_update += f", {hand['us_per_step']['update']:.0f} by hand"
     lines += ["", "**Where this engine's PPO step goes** (Ant, in process, µs per env step, the engine's own timers): "
               f"env {us['env']:.0f} (physics alone: {res['physics_ant_us']:.0f} standing, "
               f"{res.get('physics_replay_ant_us', float('nan')):.0f} on the same steps), inference "
@@ -463,15 +496,17 @@ def markdown(res: dict) -> str:
         f"| policy forward, batch of one, MIKT 2 teachers (eight) | {p['forward_mikt_2_module_us']:.1f} | "
         f"{p['forward_mikt_2_rollout_us']:.1f} |",
         "",
-        "| minibatch update step (loss, backward, clip, Adam; 64 samples) | eager µs | compiled µs | compile s |",
-        "|---|---|---|---|",
+        "| minibatch update step (loss, backward, clip, Adam; 64 samples) | eager µs | compiled µs | compile s | "
+        "by hand µs |",
+        "|---|---|---|---|---|",
     ]
     labels = {"ppo_ant": "PPO, Ant", "mikt_1_eight": "MIKT 1 teacher (six → eight)",
               "mikt_2_eight": "MIKT 2 teachers (four + six → eight)"}
     for name, row in res["pieces"]["update"].items():
         comp = (f"{row['compiled_us_per_minibatch']:.0f} | {row['compile_s']:.0f}" if "compiled_us_per_minibatch" in row
                 else "— | —")
-        lines.append(f"| {labels[name]} | {row['eager_us_per_minibatch']:.0f} | {comp} |")
+        by_hand = f"{row['by_hand_us_per_minibatch']:.0f}" if "by_hand_us_per_minibatch" in row else "—"
+        lines.append(f"| {labels[name]} | {row['eager_us_per_minibatch']:.0f} | {comp} | {by_hand} |")
     upd = res["pieces"]["update"]
     if "compiled_us_per_minibatch" in upd["ppo_ant"]:
         def per_step(name: str, key: str) -> float:
@@ -525,9 +560,11 @@ def main(argv: list[str] | None = None) -> dict:
         return only_seeds_together(res, args, repeats, 2048 if quick else 20480, t_start)
     res["physics_ant_us"] = physics_us("ant", number * 2, repeats + 2)
     res["physics_replay_ant_us"] = min(physics_replay_us(steps, args.seed) for _ in range(repeats))
-    runs: dict[str, list[dict]] = {"engine": [], "sb3": []} | ({} if quick else {"engine_compiled": []})
+    runs: dict[str, list[dict]] = {"engine": [], "engine_by_hand": [], "sb3": []} | (
+        {} if quick else {"engine_compiled": []})
     for _ in range(repeats):
         runs["engine"].append(engine_run(steps, args.seed))
+        runs["engine_by_hand"].append(engine_run(steps, args.seed, gradients="by-hand"))
         if not quick:
             runs["engine_compiled"].append(engine_run(steps, args.seed, compile_loss=True))
         runs["sb3"].append(sb3_run(steps, args.seed))

@@ -341,7 +341,8 @@ def test_throughput_quick_run_writes_its_tables_and_figures(tmp_path):
     res = throughput.main(["--quick", "--no-whole-process", "--out", str(tmp_path)])
     saved = json.loads((tmp_path / "throughput.json").read_text())
     assert saved["quick"] and saved["in_process"]["engine"]["lean_env"]
-    assert set(saved["ratios"]) == {"rollout_vs_physics", "rollout_vs_physics_same_steps", "ppo_vs_sb3"}
+    assert set(saved["ratios"]) == {"rollout_vs_physics", "rollout_vs_physics_same_steps", "ppo_vs_sb3",
+                                    "ppo_by_hand_vs_sb3"}
     assert all(v > 0 for v in saved["ratios"].values())
     page = (tmp_path / "throughput.md").read_text()
     assert saved["date"] in page and "python benchmarks/throughput.py --quick" in page
@@ -354,10 +355,12 @@ def test_throughput_quick_run_writes_its_tables_and_figures(tmp_path):
                             enumerate(names.items())}
     res["seeds_together"] = {"seeds": 5, "steps_per_seed": 20480, "together_s": 10.0, "separate_s": 16.0}
     ratios = throughput.ratios(res)
-    assert ratios["teacher_vs_sb3_script"] == 11.0 / 10.0 and ratios["two_teachers_vs_ppo"] == 14.0 / 12.0
+    assert ratios["teacher_vs_sb3_script"] == 11.0 / 10.0 and ratios["two_teachers_vs_ppo"] == 15.0 / 12.0
+    assert ratios["one_teacher_vs_ppo_autograd"] == 14.0 / 13.0  # the transfers against autograd's PPO too
     assert ratios["seeds_together_vs_separate"] == 1.6
     page = throughput.markdown({**res, "ratios": ratios})
     assert "two-teacher transfer" in page and "5 seeds × 20,480 steps" in page
+    assert "gradient by hand" in page and "with autograd's update" in page and "by hand µs" in page
     update = throughput.together_update(2, 1, n_steps=128)
     assert update["seeds"] == 2
     assert update["together_ms_per_seed_minibatch"] > 0 and update["separate_ms_per_seed_minibatch"] > 0

@@ -176,3 +176,16 @@ def test_a_by_hand_run_keeps_its_path_on_resume(teacher, ctrl_c_at_second_update
     assert "computes its gradient by hand" in out
     mikt("teacher", "train", "--resume", "run2")
     assert card_ppo("run2")["gradients"] == "by-hand"
+
+
+def test_a_study_keeps_autograd_unless_its_grid_asks(registry):
+    """A grid's compile_loss (off unless set) picks autograd's eager path, so the committed studies keep
+    reproducing; a method's `ppo = { gradients = "by-hand" }` turns the faster path on."""
+    from miktcli.studies.grid import Grid
+    from miktcli.studies.study import Study
+
+    grid = Grid.model_validate({"name": "g", "steps": 2048, "seeds": [0], "eval_episodes": 1, "methods": [
+        {"name": "vpg", "method": "vpg"}, {"name": "vpg-by-hand", "method": "vpg", "ppo": {"gradients": "by-hand"}}],
+        "pairs": [{"from": ["x"], "to": "centipede-four"}]})
+    cells = Study(grid, registry.parent / "out", registry).prepare("test")
+    assert sorted(run.card.config.ppo.gradients for _, run in cells) == ["autograd", "by-hand"]

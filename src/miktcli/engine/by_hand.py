@@ -20,6 +20,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import torch
+from torch.nn import functional as F
 
 from miktcli.engine.nets import MLP
 from miktcli.engine.policies import LOG_2PI, GaussianActorCritic
@@ -46,6 +47,16 @@ def unsupported(agent: torch.nn.Module) -> str | None:
     return None
 
 
+def ratio_logs(pg_loss: torch.Tensor, v_loss: torch.Tensor, ratio: torch.Tensor, logratio: torch.Tensor,
+               clip_range: float) -> dict[str, torch.Tensor]:
+    """The logs every minibatch loss returns first (PPOTrainer.loss too, so both paths log alike): the two
+    losses, the approximate KL, the clipped fraction and the largest ratio deviation, per row of the last dim."""
+    change = ratio - 1.0
+    deviation = change.abs()
+    return {"loss_policy": pg_loss, "loss_value": v_loss, "approx_kl": (change - logratio).mean(-1),
+            "clipfrac": (deviation > clip_range).float().mean(-1), "ratio_dev": deviation.amax(-1)}
+
+
 class _Layers:
     """One MLP's forward, keeping each layer's output, and its backward into the parameters' `.grad`."""
 
@@ -57,10 +68,9 @@ class _Layers:
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
         outputs = [x]
         for weight, bias in self.net.layer_params:
-            x = self.act(torch.addmm(bias, x, weight.t()))  # F.linear on a 2-D input: the same kernel and bits
+            x = self.act(F.linear(x, weight, bias))  # MLP.forward's kernels, so its bits
             outputs.append(x)
-        weight, bias = self.net.head_params
-        return torch.addmm(bias, x, weight.t()), outputs
+        return F.linear(x, *self.net.head_params), outputs
 
     def backward(self, grad_out: torch.Tensor, outputs: list[torch.Tensor]) -> None:
         """Write d loss / d parameter into every parameter's `.grad`, given d loss / d output (rows, out)."""
@@ -114,11 +124,11 @@ class HandGradients:
         # d pg / d ratio: the unclipped branch's wherever it is the max; inside the clip range both branches
         # are the same number (a tie, split evenly, and clamp passes its half), outside it the clipped one
         # carries no gradient
-        grad_logprob = (unclipped >= clipped) * (-adv / rows) * ratio
+        grad_logprob = ((unclipped >= clipped) * (-adv / rows) * ratio)[:, None]
         # d new_logprob / d mean = z / std; d / d log_std = z² − 1 (summed over rows)
-        grad_rows = grad_logprob[:, None] * z
+        grad_rows = grad_logprob * z
         grad_mean = grad_rows * inv_std
-        grad_log_std = (grad_rows * z - grad_logprob[:, None]).sum(0)
+        grad_log_std = (grad_rows * z - grad_logprob).sum(0)
 
         v_loss, grad_value = self._value_loss(value, mb)
         terms_logs: dict[str, torch.Tensor] = {}
@@ -139,13 +149,7 @@ class HandGradients:
         self.pi.backward(grad_mean, pi_out)
         self.vf.backward(grad_value[:, None], vf_out)
         log_std.grad.copy_(grad_log_std)
-        return {
-            "loss_policy": pg_loss, "loss_value": v_loss,
-            "approx_kl": ((ratio - 1) - logratio).mean(-1),
-            "clipfrac": ((ratio - 1.0).abs() > cfg.clip_range).float().mean(-1),
-            "ratio_dev": (ratio - 1.0).abs().amax(-1),
-            **terms_logs,
-        }
+        return {**ratio_logs(pg_loss, v_loss, ratio, logratio, cfg.clip_range), **terms_logs}
 
     def _value_loss(self, value: torch.Tensor, mb: Minibatch) -> tuple[torch.Tensor, torch.Tensor]:
         """The value loss as PPOTrainer.loss defines it (unweighted, for the logs) and d (vf_coef · it) /

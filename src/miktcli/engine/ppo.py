@@ -22,7 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from miktcli import compat
 from miktcli.engine.adam import FusedAdam
-from miktcli.engine.by_hand import HandGradients, unsupported
+from miktcli.engine.by_hand import HandGradients, ratio_logs, unsupported
 from miktcli.engine.flatparams import FlatParameters
 from miktcli.engine.nets import update_moments
 from miktcli.engine.policies import ActorCritic, gaussian_kl, gaussian_log_prob
@@ -419,10 +419,7 @@ class PPOTrainer:
         loss = torch.stack(list(terms.values())).sum(0)
         with torch.no_grad():
             logs = {
-                "loss_policy": pg_loss, "loss_value": v_loss,
-                "approx_kl": ((ratio - 1) - logratio).mean(-1),
-                "clipfrac": ((ratio - 1.0).abs() > cfg.clip_range).float().mean(-1),
-                "ratio_dev": (ratio - 1.0).abs().amax(-1),
+                **ratio_logs(pg_loss, v_loss, ratio, logratio, cfg.clip_range),
                 **{k: v for k, v in terms.items() if k not in ("loss_policy", "loss_value_weighted")},
             }
         return loss, logs
