@@ -40,8 +40,9 @@ def unsupported(agent: torch.nn.Module) -> str | None:
     actor-critic (PPO, VPG, MLPP and teacher training), every parameter trained."""
     if type(agent) is not GaussianActorCritic:
         return f"{type(agent).__name__} is not the plain actor-critic (PPO, VPG, MLPP); its update needs autograd"
-    if agent.pi.activation not in _ACTIVATION_BACKWARD or agent.vf.activation not in _ACTIVATION_BACKWARD:
-        return f"no hand-written backward for the activation '{agent.pi.activation}'"
+    for net in (agent.pi, agent.vf):
+        if net.activation not in _ACTIVATION_BACKWARD:
+            return f"no hand-written backward for the activation '{net.activation}'"
     if not all(p.requires_grad for p in agent.parameters()):
         return "the agent has frozen parameters; the hand-written gradient trains every one"
     return None
@@ -62,7 +63,7 @@ class _Layers:
 
     def __init__(self, net: MLP):
         self.net = net
-        self.act = {"tanh": torch.tanh, "relu": torch.relu}[net.activation]
+        self.act = net.act  # MLP.forward's own activation
         self.act_backward = _ACTIVATION_BACKWARD[net.activation]
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
